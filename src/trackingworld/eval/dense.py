@@ -1,0 +1,72 @@
+"""Metrics on the dense output: coverage, long-range flow, the dense-track depth protocol, labels."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from trackingworld.geometry import invert_pose, transform
+
+
+def coverage(tracks_2d: np.ndarray, visible: np.ndarray, H: int, W: int) -> dict:
+    """Fraction of the pixels of each frame hit by a visible track (rounded position), averaged."""
+    T = visible.shape[1]
+    per = np.zeros(T)
+    for t in range(T):
+        v = visible[:, t]
+        xy = np.round(tracks_2d[v, t]).astype(np.int64)
+        ok = (xy[:, 0] >= 0) & (xy[:, 0] < W) & (xy[:, 1] >= 0) & (xy[:, 1] < H)
+        per[t] = np.unique(xy[ok, 1] * W + xy[ok, 0]).size / (H * W)
+    return {"coverage": float(per.mean()), "coverage_min": float(per.min()), "coverage_per_frame": per.tolist()}
+
+
+def dense_flow(tracks_2d, visible, src: int, dst: int, H: int, W: int):
+    """Flow ``[H,W,2]`` from frame src to dst and predicted occlusion ``[H,W]``, read from the tracks
+    visible in ``src`` (nearest track per pixel, its displacement carried over)."""
+    cand = np.flatnonzero(visible[:, src])
+    ys, xs = np.mgrid[0:H, 0:W]
+    pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+    if cand.size == 0:
+        return np.zeros((H, W, 2)), np.ones((H, W), bool)
+    _, j = cKDTree(tracks_2d[cand, src]).query(pix, k=1)
+    idx = cand[j]
+    flow = tracks_2d[idx, dst] - tracks_2d[idx, src]
+    return flow.reshape(H, W, 2), ~visible[idx, dst].reshape(H, W)
+
+
+def flow_metrics(pred_flow, pred_occ, gt_flow, gt_occ) -> dict:
+    epe = float(np.linalg.norm(pred_flow - gt_flow, axis=-1).mean())
+    inter = (pred_occ & gt_occ).sum()
+    union = (pred_occ | gt_occ).sum()
+    return {"epe": epe, "occ_iou": float(inter / union) if union else 1.0}
+
+
+def track_depth_maps(tracks_2d, visible, tracks_3d, poses_c2w, H: int, W: int):
+    """The paper's protocol: project every visible track into its frame (camera depth from the world
+    position and pose, pixel = rounded 2D position), keep the smaller depth per pixel.
+    Returns depth ``[T,H,W]`` (0 where no track) and the hit mask."""
+    T = visible.shape[1]
+    out = np.full((T, H, W), np.inf, np.float32)
+    for t in range(T):
+        v = visible[:, t]
+        z = transform(invert_pose(poses_c2w[t].astype(np.float64)), tracks_3d[v, t].astype(np.float64))[:, 2]
+        xy = np.round(tracks_2d[v, t]).astype(np.int64)
+        ok = (xy[:, 0] >= 0) & (xy[:, 0] < W) & (xy[:, 1] >= 0) & (xy[:, 1] < H) & (z > 0)
+        np.minimum.at(out[t].reshape(-1), xy[ok, 1] * W + xy[ok, 0], z[ok].astype(np.float32))
+    hit = np.isfinite(out)
+    return np.where(hit, out, 0.0), hit
+
+
+def label_metrics(pred_dyn: np.ndarray, gt_dyn: np.ndarray, gt_bg: np.ndarray) -> dict:
+    """Recall / precision (%) of the dynamic label, static kept static, and recall on the movers the
+    coarse masks missed, reported on their own."""
+    tp = (pred_dyn & gt_dyn).sum()
+    out = {
+        "dynamic_recall": 100 * float(tp / max(gt_dyn.sum(), 1)),
+        "dynamic_precision": 100 * float(tp / max(pred_dyn.sum(), 1)),
+        "static_kept_static": 100 * float((~pred_dyn & ~gt_dyn).sum() / max((~gt_dyn).sum(), 1)),
+        "n_tracks_gt_dynamic": int(gt_dyn.sum()),
+        "n_tracks_bg_mover": int(gt_bg.sum()),
+    }
+    out["bg_mover_recall"] = 100 * float((pred_dyn & gt_bg).sum() / gt_bg.sum()) if gt_bg.any() else None
+    return out

@@ -1,0 +1,81 @@
+"""Reading input frames: a video file (through PyAV) or a folder of images (sorted by name)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from trackingworld.errors import InputError
+
+IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
+VIDEO_EXTS = {".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".gif"}
+
+
+def list_images(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS)
+
+
+def _to_rgb(img: np.ndarray, src: Path) -> np.ndarray:
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise InputError(f"{src}: unsupported image layout {img.shape}")
+    img = img[..., :3]
+    if img.dtype == np.uint16:
+        img = (img // 257).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    return img
+
+
+def read_frames(
+    path: str | os.PathLike, max_frames: int | None = None, stride: int = 1
+) -> tuple[np.ndarray, float | None]:
+    """Read frames ``[T,H,W,3]`` uint8 RGB and the frame rate (None for image folders).
+
+    ``stride`` keeps every k-th frame, ``max_frames`` caps the count after striding.
+    """
+    path = Path(path)
+    if stride < 1:
+        raise InputError(f"--frame-stride must be >= 1, got {stride}")
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    frames: list[np.ndarray] = []
+    fps = None
+    if path.is_dir():
+        files = list_images(path)[::stride]
+        if max_frames:
+            files = files[:max_frames]
+        if not files:
+            raise InputError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_EXTS))})")
+        for f in files:
+            try:
+                frames.append(_to_rgb(iio.imread(f), f))
+            except (OSError, ValueError) as e:
+                raise InputError(f"{f}: cannot read image ({e})") from e
+    else:
+        if path.suffix.lower() not in VIDEO_EXTS and path.suffix.lower() not in IMAGE_EXTS:
+            raise InputError(f"{path}: unknown input type (expected a video file or a folder of images)")
+        try:
+            meta = iio.immeta(path, plugin="pyav") if path.suffix.lower() in VIDEO_EXTS else {}
+            fps = meta.get("fps")
+            for i, img in enumerate(iio.imiter(path, plugin="pyav") if path.suffix.lower() in VIDEO_EXTS
+                                    else [iio.imread(path)]):
+                if i % stride:
+                    continue
+                frames.append(_to_rgb(np.asarray(img), path))
+                if max_frames and len(frames) >= max_frames:
+                    break
+        except InputError:
+            raise
+        except Exception as e:  # PyAV raises many types for broken files
+            raise InputError(f"{path}: cannot decode video ({type(e).__name__}: {e})") from e
+        if not frames:
+            raise InputError(f"{path}: video holds no frames")
+    shapes = {f.shape for f in frames}
+    if len(shapes) != 1:
+        raise InputError(f"{path}: frames differ in size ({sorted(shapes)})")
+    return np.stack(frames), (float(fps) / stride if fps else None)

@@ -1,0 +1,122 @@
+"""Reading user-given priors: depth maps, dynamic masks and intrinsics."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from trackingworld.errors import InputError
+from trackingworld.io.frames import list_images
+
+
+def _select(arr: np.ndarray, T_video: int, stride: int, path: Path, what: str) -> np.ndarray:
+    """Apply the same frame stride / cap as the video and check the frame count."""
+    arr = arr[::stride]
+    if arr.shape[0] < T_video:
+        raise InputError(f"{path}: {what} has {arr.shape[0]} frames after stride {stride}, video has {T_video}")
+    return arr[:T_video]
+
+
+def load_depth(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
+    """Depth ``[T,H,W]`` float32 metres from ``.npy``/``.npz`` (metres) or a folder of 16-bit PNGs (mm)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such depth file or folder")
+    if path.is_dir():
+        files = list_images(path)
+        if not files:
+            raise InputError(f"{path}: depth folder holds no PNG files")
+        imgs = []
+        for f in files[::stride][:T]:
+            d = iio.imread(f)
+            if d.dtype != np.uint16 or d.ndim != 2:
+                raise InputError(f"{f}: depth PNG must be single-channel 16-bit millimetres, got {d.dtype} {d.shape}")
+            imgs.append(d.astype(np.float32) / 1000.0)
+        depth = np.stack(imgs)
+        if depth.shape[0] < T:
+            raise InputError(f"{path}: depth folder has {depth.shape[0]} usable frames, video has {T}")
+    else:
+        try:
+            if path.suffix == ".npz":
+                with np.load(path) as z:
+                    key = "depth" if "depth" in z.files else z.files[0]
+                    depth = z[key]
+            elif path.suffix == ".npy":
+                depth = np.load(path)
+            else:
+                raise InputError(f"{path}: depth must be .npy, .npz or a folder of 16-bit PNGs")
+        except (OSError, ValueError) as e:
+            raise InputError(f"{path}: cannot read depth ({e})") from e
+        if depth.ndim == 4 and depth.shape[1] == 1:
+            depth = depth[:, 0]
+        if depth.ndim != 3:
+            raise InputError(f"{path}: depth must be [T,H,W], got shape {depth.shape}")
+        depth = _select(depth.astype(np.float32), T, stride, path, "depth")
+    bad = ~np.isfinite(depth)
+    if bad.all():
+        raise InputError(f"{path}: depth holds no finite values")
+    if (depth[~bad] <= 0).all():
+        raise InputError(f"{path}: depth holds no positive values")
+    return depth
+
+
+def load_masks(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
+    """Dynamic masks ``[T,H,W]`` bool from a folder of PNGs (non-zero = dynamic) or a ``.npy`` bool array."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such mask file or folder")
+    if path.is_dir():
+        files = list_images(path)[::stride][:T]
+        if len(files) < T:
+            raise InputError(f"{path}: mask folder has {len(files)} usable images, video has {T}")
+        masks = []
+        for f in files:
+            m = iio.imread(f)
+            masks.append((m.max(axis=-1) if m.ndim == 3 else m) > 0)
+        return np.stack(masks)
+    if path.suffix not in (".npy", ".npz"):
+        raise InputError(f"{path}: masks must be a folder of PNGs or a .npy array")
+    try:
+        if path.suffix == ".npz":
+            with np.load(path) as z:
+                m = z["masks"] if "masks" in z.files else z[z.files[0]]
+        else:
+            m = np.load(path)
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read masks ({e})") from e
+    if m.ndim != 3:
+        raise InputError(f"{path}: masks must be [T,H,W], got shape {m.shape}")
+    return _select(m != 0, T, stride, path, "masks")
+
+
+def parse_intrinsics(spec: str | os.PathLike) -> np.ndarray:
+    """Intrinsics from a text file (3x3 matrix or ``fx,fy,cx,cy``) or an inline ``fx,fy,cx,cy`` string."""
+    text = str(spec)
+    p = Path(text)
+    src = text
+    if p.exists():
+        src = str(p)
+        text = p.read_text()
+    vals = [v for v in text.replace(",", " ").split() if v]
+    try:
+        nums = np.array([float(v) for v in vals])
+    except ValueError as e:
+        raise InputError(f"{src}: intrinsics must be a 3x3 matrix or fx,fy,cx,cy ({e})") from e
+    if nums.size == 9:
+        K = nums.reshape(3, 3)
+    elif nums.size == 4:
+        fx, fy, cx, cy = nums
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    else:
+        raise InputError(f"{src}: intrinsics must hold 9 numbers (3x3) or 4 (fx,fy,cx,cy), found {nums.size}")
+    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise InputError(f"{src}: intrinsics need positive finite focal lengths")
+    return K
+
+
+def check_prior_size(arr: np.ndarray, H: int, W: int, path, what: str) -> None:
+    if arr.shape[1:] != (H, W):
+        raise InputError(f"{path}: {what} is {arr.shape[2]}x{arr.shape[1]}, video frames are {W}x{H}")

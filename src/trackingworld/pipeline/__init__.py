@@ -1,0 +1,1 @@
+"""Pipeline orchestration: inputs -> 2D tracks -> world-centric 3D -> result files."""

@@ -1,0 +1,89 @@
+"""Loading and preparing a run's inputs: frames, depth prior, masks, intrinsics, processing resolution."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from trackingworld.config import InputConfig
+from trackingworld.errors import InputError
+from trackingworld.geometry import default_intrinsics, scale_intrinsics
+from trackingworld.io.frames import read_frames
+from trackingworld.io.priors import load_depth, load_masks, parse_intrinsics
+
+
+@dataclass
+class Inputs:
+    """Everything at the processing resolution (h, w), plus what is needed to return to the input one.
+
+    frames [T,h,w,3] uint8; depth [T,h,w] float32 metres (None when not given); masks [T,h,w] bool;
+    K [3,3] at the processing resolution; size_in (W, H) of the input frames.
+    """
+
+    frames: np.ndarray
+    depth: np.ndarray | None
+    masks: np.ndarray
+    K: np.ndarray
+    size_in: tuple[int, int]
+    K_in: np.ndarray
+    fps: float | None = None
+
+    @property
+    def scale(self) -> tuple[float, float]:
+        """(sx, sy) from processing to input pixels."""
+        return self.size_in[0] / self.frames.shape[2], self.size_in[1] / self.frames.shape[1]
+
+    def to_input_pixels(self, uv: np.ndarray) -> np.ndarray:
+        sx, sy = self.scale
+        out = uv.astype(np.float32).copy()
+        out[..., 0] = (uv[..., 0] + 0.5) * sx - 0.5
+        out[..., 1] = (uv[..., 1] + 0.5) * sy - 0.5
+        return out
+
+
+def resize_stack(arr: np.ndarray, w: int, h: int, interp: int) -> np.ndarray:
+    """Resize every frame of ``[T,H,W(,C)]`` to (w, h)."""
+    if arr.shape[2] == w and arr.shape[1] == h:
+        return arr
+    return np.stack([cv2.resize(a, (w, h), interpolation=interp) for a in arr])
+
+
+def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
+    frames, fps = read_frames(cfg.input, cfg.max_frames, cfg.frame_stride)
+    T, H, W = frames.shape[:3]
+    if T < 2:
+        raise InputError(f"{cfg.input}: need at least 2 frames, found {T}")
+    depth = None
+    if cfg.depth:
+        depth = load_depth(cfg.depth, T, cfg.frame_stride)
+        if depth.shape[1:] != (H, W):  # depth models often predict at their own size
+            depth = resize_stack(depth, W, H, cv2.INTER_LINEAR)
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+        fill = np.nanmedian(depth)
+        depth = np.nan_to_num(depth, nan=fill)
+    masks = np.zeros((T, H, W), bool)
+    if cfg.masks:
+        masks = load_masks(cfg.masks, T, cfg.frame_stride)
+        if masks.shape[1:] != (H, W):
+            masks = resize_stack(masks.astype(np.uint8), W, H, cv2.INTER_NEAREST) > 0
+    if cfg.intrinsics:
+        K_in = parse_intrinsics(cfg.intrinsics)
+    else:
+        K_in = default_intrinsics(W, H, cfg.default_fov_deg)
+        if verbose:
+            print(f"[inputs] no intrinsics given: assuming a {cfg.default_fov_deg:.0f} deg horizontal field of view",
+                  file=sys.stderr)
+    w, h = W, H
+    if cfg.resize and max(W, H) > cfg.resize:
+        s = cfg.resize / max(W, H)
+        w, h = max(2, round(W * s)), max(2, round(H * s))
+    K = scale_intrinsics(K_in, w / W, h / H)
+    frames_p = resize_stack(frames, w, h, cv2.INTER_AREA)
+    depth_p = None if depth is None else resize_stack(depth, w, h, cv2.INTER_LINEAR)
+    masks_p = resize_stack(masks.astype(np.uint8), w, h, cv2.INTER_NEAREST) > 0
+    if verbose:
+        print(f"[inputs] {T} frames {W}x{H}, processing at {w}x{h}", file=sys.stderr)
+    return Inputs(frames_p, depth_p, masks_p, K, (W, H), K_in, fps)

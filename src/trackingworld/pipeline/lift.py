@@ -1,0 +1,24 @@
+"""Camera-centric lifting: 2D tracks + per-frame depth -> 3D points in each frame's camera."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from trackingworld.geometry import unproject
+
+
+def sample_maps(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear sample of ``maps [T,H,W]`` at ``uv [N,T,2]`` (border replicated) -> ``[N,T]``."""
+    N, T = uv.shape[:2]
+    out = np.zeros((N, T), np.float32)
+    for t in range(T):
+        m = uv[:, t].astype(np.float32)
+        out[:, t] = cv2.remap(maps[t].astype(np.float32), m[:, 0:1], m[:, 1:2], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)[:, 0]
+    return out
+
+
+def lift_camera_frame(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Tracks ``[N,T,2]`` + depth maps ``[T,H,W]`` -> camera-frame points ``[N,T,3]`` metres."""
+    return unproject(uv, sample_maps(depth, uv), K).astype(np.float32)

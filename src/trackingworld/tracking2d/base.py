@@ -1,0 +1,56 @@
+"""Tracker interface (kept small, like CoTracker's predictor): frames + queries in, tracks out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+
+@dataclass
+class TrackResult:
+    """2D tracks of N query points over T frames.
+
+    tracks: [N,T,2] float32 pixels (x right, y down, pixel centres at integers); finite everywhere,
+        held at the last observed position where the point is not visible.
+    visible: [N,T] bool. confidence: [N,T] float32 in [0,1]. queries: [N,3] float32 (t, x, y).
+    """
+
+    tracks: np.ndarray
+    visible: np.ndarray
+    confidence: np.ndarray
+    queries: np.ndarray
+
+    def __post_init__(self) -> None:
+        N = self.queries.shape[0]
+        T = self.visible.shape[1] if self.visible.ndim == 2 else 0
+        assert self.tracks.shape == (N, T, 2), self.tracks.shape
+        assert self.visible.shape == self.confidence.shape == (N, T)
+
+    @staticmethod
+    def concatenate(parts: list[TrackResult]) -> TrackResult:
+        return TrackResult(*(np.concatenate([getattr(p, k) for p in parts]) for k in
+                             ("tracks", "visible", "confidence", "queries")))
+
+
+class Tracker(Protocol):
+    def track(self, frames: np.ndarray, queries: np.ndarray) -> TrackResult:
+        """frames [T,H,W,3] uint8 RGB, queries [N,3] (t, x, y) -> tracks in both directions of time."""
+        ...
+
+
+def hold_invisible(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Fill the frames where a track is not visible with its value at the nearest visible frame in time
+    (ties go to the earlier frame). values [N,T,C], visible [N,T]; tracks never visible are left as is."""
+    N, T = visible.shape
+    idx = np.arange(T)[None].repeat(N, 0)
+    prev = np.where(visible, idx, -1)
+    prev = np.maximum.accumulate(prev, axis=1)
+    nxt = np.where(visible, idx, T)
+    nxt = np.minimum.accumulate(nxt[:, ::-1], axis=1)[:, ::-1]
+    d_prev = np.where(prev >= 0, idx - prev, T + 1)
+    d_next = np.where(nxt < T, nxt - idx, T + 1)
+    src = np.where(d_prev <= d_next, prev, nxt)
+    src = np.where((src < 0) | (src >= T), idx, src)
+    return np.take_along_axis(values, src[..., None], axis=1)
