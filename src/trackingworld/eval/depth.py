@@ -1,30 +1,34 @@
 """Depth metrics: Abs Rel and delta<1.25 after one scale and shift per sequence.
 
 Two fitting conventions exist in the field and both are provided:
-* ``depth``: MonST3R's, in depth space: median-ratio start, then L1 refinement (IRLS);
+* ``depth``: MonST3R's, in depth space: median-ratio start, then L1 refinement;
 * ``disparity``: DepthCrafter's, least squares on inverse depth.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 
-def fit_scale_shift_depth(pred: np.ndarray, gt: np.ndarray, iters: int = 30) -> tuple[float, float]:
-    """(s, b) minimising sum |s*pred + b - gt| (L1), started from the median ratio."""
-    s = float(np.median(gt) / max(np.median(pred), 1e-12))
-    b = 0.0
-    A = np.stack([pred, np.ones_like(pred)], 1).astype(np.float64)
+def fit_scale_shift_depth(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
+    """(s, b) minimising sum |s*pred + b - gt| (L1).
+
+    For a fixed s the best b is the median of ``gt - s*pred``, and the remaining function of s is convex,
+    so a bounded scalar search around the median-ratio start finds the global L1 optimum.
+    """
+    p = pred.astype(np.float64)
     g = gt.astype(np.float64)
-    for _ in range(iters):
-        r = np.abs(A @ np.array([s, b]) - g)
-        w = 1.0 / np.maximum(r, 1e-6)
-        Aw = A * w[:, None]
-        sol = np.linalg.solve(A.T @ Aw + 1e-12 * np.eye(2), Aw.T @ g)
-        if not np.all(np.isfinite(sol)):
-            break
-        s, b = float(sol[0]), float(sol[1])
-    return s, b
+    s0 = float(np.median(g) / max(np.median(p), 1e-12))
+
+    def cost(s: float) -> float:
+        r = g - s * p
+        return float(np.abs(r - np.median(r)).mean())
+
+    lo, hi = (s0 / 20, s0 * 20) if s0 > 0 else (-1e3, 1e3)
+    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-9 * max(abs(s0), 1)})
+    s = float(res.x) if cost(res.x) <= cost(s0) else s0
+    return s, float(np.median(g - s * p))
 
 
 def fit_scale_shift_disparity(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:

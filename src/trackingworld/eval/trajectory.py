@@ -7,6 +7,7 @@ import copy
 
 import numpy as np
 from evo.core import metrics
+from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
 MIN_SPREAD = 1e-6  # metres: below this a trajectory's positions are treated as a single point
@@ -28,7 +29,10 @@ def sim3_from_trajectories(est_c2w: np.ndarray, gt_c2w: np.ndarray) -> dict:
     spread_gt = np.linalg.norm(gt_c2w[:, :3, 3] - gt_c2w[:, :3, 3].mean(0), axis=1).max()
     if spread_est > MIN_SPREAD and spread_gt > MIN_SPREAD and len(est_c2w) >= 3:
         est = copy.deepcopy(_traj(est_c2w))
-        R, t, s = est.align(_traj(gt_c2w), correct_scale=True)
+        try:
+            R, t, s = est.align(_traj(gt_c2w), correct_scale=True)
+        except GeometryException:  # e.g. collinear positions
+            s = np.nan
         if np.isfinite(s) and s > 0:
             return {"s": float(s), "R": np.asarray(R), "t": np.asarray(t), "mode": "sim3_umeyama"}
     A = gt_c2w[0] @ np.linalg.inv(est_c2w[0])

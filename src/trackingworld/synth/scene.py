@@ -141,7 +141,7 @@ def make_scene(cfg: SceneConfig | str = "default", seed: int = 0, **overrides) -
             c = np.array([rng.uniform(-3.2, 3.2), room_hi[1] - h[1], rng.uniform(1.0, 8.0)])
             if clear_of_camera(c[None], 1.5 + h.max()):
                 break
-        yaw = Rotation.from_euler("y", rng.uniform(0, 90), degrees=True).as_matrix()
+        yaw = Rotation.from_euler("y", float(rng.uniform(0, 90)), degrees=True).as_matrix()
         if rng.random() < 0.3:
             r = float(h[0])
             c[1] = room_hi[1] - r

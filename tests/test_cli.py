@@ -1,0 +1,63 @@
+import json
+
+import numpy as np
+import pytest
+
+from trackingworld import load_result
+from trackingworld.cli.main import main
+
+
+def test_run_and_eval_end_to_end(tiny_scene, tmp_path, capsys):
+    inp = tiny_scene / "input"
+    out = tmp_path / "res"
+    rc = main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+               "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet"])
+    assert rc == 0
+    r = load_result(out)
+    assert r.tracks_2d.shape[1] == 10 and r.depth.shape == (10, 96, 128)
+    assert np.isfinite(r.tracks_3d).all()
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["method"] == "baseline" and cfg["inputs"]["depth"].endswith("depth.npy")
+    assert main(["eval", str(out), "--gt", str(tiny_scene)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["camera"]["ate"] > 0 and "abs_rel_depth" in m["track_depth_prior"]
+    # the baseline returns the raw prior as its video depth: identical numbers on the same pixels
+    assert m["video_depth"]["abs_rel_depth"] == pytest.approx(m["video_depth_prior"]["abs_rel_depth"])
+    assert "ATE" in capsys.readouterr().out
+
+
+def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
+    inp = tiny_scene / "input"
+    out = tmp_path / "res"
+    assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                 "--resize", "64", "--max-frames", "6", "--quiet"]) == 0
+    r = load_result(out)
+    assert r.depth.shape == (6, 96, 128)
+    assert r.tracks_2d[..., 0].max() > 100  # pixel coordinates at the input resolution
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["run", "nonexistent.mp4", "--out", "{out}"], "nonexistent.mp4: no such file"),
+    (["run", "{frames}", "--out", "{out}", "--intrinsics", "1,2,3"], "intrinsics must hold"),
+    (["run", "{frames}", "--out", "{out}", "--depth", "{bad}"], "depth must be"),
+    (["eval", "{out}", "--gt", "{frames}"], "no such result"),
+])
+def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("x")
+    fill = {"out": str(tmp_path / "o"), "frames": str(tiny_scene / "input" / "frames"), "bad": str(bad)}
+    rc = main([a.format(**fill) for a in args])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and needle in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o" / "result.npz").exists()
+
+
+def test_video_input(tiny_scene, tmp_path):
+    import imageio.v3 as iio
+
+    frames = np.stack([iio.imread(p) for p in sorted((tiny_scene / "input" / "frames").glob("*.png"))])
+    video = tmp_path / "v.mp4"
+    iio.imwrite(video, frames, plugin="pyav", codec="libx264", fps=10)
+    out = tmp_path / "res"
+    assert main(["run", str(video), "--out", str(out), "--quiet", "--frame-stride", "2"]) == 0
+    assert load_result(out).num_frames == 5

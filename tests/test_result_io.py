@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+from trackingworld import Result, load_result, save_result
+from trackingworld.errors import InputError
+from trackingworld.io.atomic import atomic_path
+from trackingworld.io.priors import load_depth, load_masks, parse_intrinsics
+
+
+def make_result(N=5, T=4, H=6, W=8, rng=None):
+    rng = rng or np.random.default_rng(0)
+    return Result(
+        tracks_2d=rng.uniform(0, 5, (N, T, 2)), visible=rng.random((N, T)) > 0.3,
+        tracks_3d=rng.normal(size=(N, T, 3)), query_frame=rng.integers(0, T, N),
+        is_dynamic=rng.random(N) > 0.5, colors=rng.integers(0, 255, (N, 3)),
+        poses_c2w=np.tile(np.eye(4), (T, 1, 1)), intrinsics=np.eye(3), depth=rng.uniform(1, 2, (T, H, W)),
+    )
+
+
+def test_round_trip(tmp_path):
+    r = make_result()
+    save_result(tmp_path, r)
+    back = load_result(tmp_path)
+    for k, v in r.as_dict().items():
+        got = getattr(back, k)
+        assert got.dtype == Result.DTYPES[k], k
+        np.testing.assert_array_equal(got, v)
+    assert set(np.load(tmp_path / "result.npz").files) == set(Result.DTYPES)
+    lines = (tmp_path / "poses_tum.txt").read_text().splitlines()
+    assert len(lines) == 4 and lines[0].split() == ["0", *(["0.000000000"] * 6), "1.000000000"]
+
+
+def test_tum_round_trip_with_evo(tmp_path):
+    from evo.tools import file_interface
+    from scipy.spatial.transform import Rotation
+
+    r = make_result()
+    r.poses_c2w[:, :3, :3] = Rotation.random(4, random_state=1).as_matrix()
+    r.poses_c2w[:, :3, 3] = np.arange(12).reshape(4, 3)
+    save_result(tmp_path, r)
+    traj = file_interface.read_tum_trajectory_file(str(tmp_path / "poses_tum.txt"))
+    np.testing.assert_allclose(np.stack(traj.poses_se3), r.poses_c2w, atol=1e-6)
+
+
+def test_rejects_nan():
+    r = make_result()
+    r.tracks_3d[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        r.validate()
+
+
+def test_shape_mismatch_rejected():
+    with pytest.raises(ValueError, match="shape"):
+        Result(**{**make_result().as_dict(), "colors": np.zeros((2, 3))})
+
+
+def test_atomic_write_leaves_nothing_on_error(tmp_path):
+    target = tmp_path / "x.npz"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"partial")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_load_result_errors(tmp_path):
+    with pytest.raises(InputError, match="no such result"):
+        load_result(tmp_path)
+    np.savez(tmp_path / "result.npz", a=np.zeros(1))
+    with pytest.raises(InputError, match="missing keys"):
+        load_result(tmp_path)
+
+
+def test_priors_loaders(tmp_path):
+    import imageio.v3 as iio
+
+    d = np.random.default_rng(0).uniform(0.5, 5, (3, 4, 5)).astype(np.float32)
+    np.save(tmp_path / "d.npy", d)
+    np.testing.assert_array_equal(load_depth(tmp_path / "d.npy", 3), d)
+    (tmp_path / "png").mkdir()
+    for i in range(3):
+        iio.imwrite(tmp_path / "png" / f"{i:03d}.png", (d[i] * 1000).astype(np.uint16))
+    np.testing.assert_allclose(load_depth(tmp_path / "png", 3), d, atol=1e-3)
+    with pytest.raises(InputError, match="frames"):
+        load_depth(tmp_path / "d.npy", 5)
+    m = np.zeros((3, 4, 5), bool)
+    m[1, 2, 3] = True
+    np.save(tmp_path / "m.npy", m)
+    np.testing.assert_array_equal(load_masks(tmp_path / "m.npy", 3), m)
+    np.testing.assert_array_equal(parse_intrinsics("100,110,50,40"),
+                                  [[100, 0, 50], [0, 110, 40], [0, 0, 1]])
+    (tmp_path / "K.txt").write_text("1 0 2\n0 3 4\n0 0 1\n")
+    assert parse_intrinsics(tmp_path / "K.txt")[1, 2] == 4
+    (tmp_path / "bad.txt").write_text("1 2 3\n")
+    with pytest.raises(InputError, match="bad.txt"):
+        parse_intrinsics(tmp_path / "bad.txt")
