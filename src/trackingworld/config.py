@@ -19,9 +19,16 @@ class InputConfig:
 
 @dataclass
 class Track2DConfig:
-    tracker: str = "flow"
+    tracker: str = "flow"  # flow (weight-free) | file (precomputed, see tracks_file)
+    tracks_file: str | None = None  # CoTracker / TAPNet layout .npz, see trackingworld.io.tracks
     grid_stride: int = 4  # s in the paper (Sec. 3.2)
-    flow_preset: str = "medium"
+    query_stride: int = 1  # every frame is a query frame (the authors' code: 10)
+    first_frame_only: bool = False  # ablation "w/o T.E.F"
+    cover_radius: float = 1.0  # r: covered when a visible track lies within r px (0: rounding, as the authors)
+    min_component: int = 50  # tau
+    dense_mode: str = "upsample"  # upsample (grid + convex upsampler) | direct (every pixel tracked)
+    upsampler: str = "convex"  # convex | bilinear
+    flow_preset: str = "fine"
 
 
 @dataclass

@@ -41,14 +41,65 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--max-frames", type=int, default=None)
     r.add_argument("--frame-stride", type=int, default=1)
     r.add_argument("--resize", type=int, default=None, help="long side of the processing resolution")
-    r.add_argument("--grid-stride", type=int, default=4, help="stride of the tracked grid (px)")
+    _track_args(r)
     r.add_argument("--quiet", action="store_true")
+
+    k = sub.add_parser("track2d", help="dense 2D tracking of almost all pixels of all frames")
+    k.add_argument("input", help="video file or folder of images")
+    k.add_argument("--out", required=True, help="output .npz (tracks [N,T,2], visible, confidence, queries)")
+    k.add_argument("--device", default="cpu")
+    k.add_argument("--max-frames", type=int, default=None)
+    k.add_argument("--frame-stride", type=int, default=1)
+    k.add_argument("--resize", type=int, default=None)
+    _track_args(k)
+    k.add_argument("--quiet", action="store_true")
 
     e = sub.add_parser("eval", help="evaluate a result folder against a synthetic scene")
     e.add_argument("dir", help="result folder (holding result.npz)")
     e.add_argument("--gt", required=True, help="scene folder written by `trackingworld synth`")
     e.add_argument("--json", action="store_true", help="print the full metrics as JSON")
     return p
+
+
+def _track_args(p) -> None:
+    g = p.add_argument_group("2D tracking")
+    g.add_argument("--tracks", help="precomputed tracks .npz (CoTracker or TAPNet layout) instead of tracking")
+    g.add_argument("--grid-stride", type=int, default=4, help="stride s of the tracked grid (px)")
+    g.add_argument("--query-stride", type=int, default=1, help="track from every k-th frame (authors: 10)")
+    g.add_argument("--first-frame-only", action="store_true", help="ablation: no tracking every frame")
+    g.add_argument("--cover-radius", type=float, default=1.0, help="r: px within which a pixel is covered")
+    g.add_argument("--min-component", type=int, default=50, help="tau: smallest new component (px)")
+    g.add_argument("--dense-mode", default="upsample", choices=["upsample", "direct"])
+    g.add_argument("--upsampler", default="convex", choices=["convex", "bilinear"])
+    g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])
+
+
+def _track_config(a):
+    from trackingworld.config import Track2DConfig
+
+    return Track2DConfig(
+        tracker="file" if a.tracks else "flow", tracks_file=a.tracks, grid_stride=a.grid_stride,
+        query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
+        min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset)
+
+
+def cmd_track2d(a) -> int:
+    import numpy as np
+
+    from trackingworld.config import InputConfig
+    from trackingworld.io.atomic import write_npz
+    from trackingworld.pipeline.inputs import load_inputs
+    from trackingworld.pipeline.tracks import track_video
+
+    inp = load_inputs(InputConfig(input=a.input, max_frames=a.max_frames, frame_stride=a.frame_stride,
+                                  resize=a.resize), verbose=not a.quiet)
+    tr = track_video(inp.frames, _track_config(a), None, a.device, verbose=not a.quiet)
+    q = tr.queries.copy()
+    q[:, 1:] = inp.to_input_pixels(tr.queries[:, 1:])
+    write_npz(a.out, tracks=inp.to_input_pixels(tr.tracks), visible=tr.visible,
+              confidence=tr.confidence.astype(np.float16), queries=q)
+    print(f"{len(tr.queries)} tracks x {tr.visible.shape[1]} frames written to {a.out}")
+    return 0
 
 
 def cmd_synth(a) -> int:
@@ -60,14 +111,14 @@ def cmd_synth(a) -> int:
 
 
 def cmd_run(a) -> int:
-    from trackingworld.config import InputConfig, RunConfig, Track2DConfig
+    from trackingworld.config import InputConfig, RunConfig
     from trackingworld.pipeline.run import run
 
     cfg = RunConfig(
         method=a.method, device=a.device,
         inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, intrinsics=a.intrinsics,
                            max_frames=a.max_frames, frame_stride=a.frame_stride, resize=a.resize),
-        track2d=Track2DConfig(grid_stride=a.grid_stride),
+        track2d=_track_config(a),
     )
     run(cfg, a.out, verbose=not a.quiet)
     print(f"result written to {Path(a.out) / 'result.npz'}")
@@ -98,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         p.print_help()
         return 2
     try:
-        return {"synth": cmd_synth, "run": cmd_run, "eval": cmd_eval}[a.cmd](a)
+        return {"synth": cmd_synth, "run": cmd_run, "eval": cmd_eval, "track2d": cmd_track2d}[a.cmd](a)
     except InputError as e:
         print(f"trackingworld {a.cmd}: error: {e}", file=sys.stderr)
         return 2

@@ -9,15 +9,18 @@ from trackingworld.geometry import invert_pose, transform
 
 
 def coverage(tracks_2d: np.ndarray, visible: np.ndarray, H: int, W: int) -> dict:
-    """Fraction of the pixels of each frame hit by a visible track (rounded position), averaged."""
+    """Fraction of the pixels of each frame hit by a visible track (rounded position), averaged over frames;
+    ``coverage_r1``: the fraction with a visible track within 1 px (the tracker's covering rule)."""
+    from trackingworld.tracking2d.dense import splat_coverage
+
     T = visible.shape[1]
-    per = np.zeros(T)
-    for t in range(T):
-        v = visible[:, t]
-        xy = np.round(tracks_2d[v, t]).astype(np.int64)
-        ok = (xy[:, 0] >= 0) & (xy[:, 0] < W) & (xy[:, 1] >= 0) & (xy[:, 1] < H)
-        per[t] = np.unique(xy[ok, 1] * W + xy[ok, 0]).size / (H * W)
-    return {"coverage": float(per.mean()), "coverage_min": float(per.min()), "coverage_per_frame": per.tolist()}
+    hit = np.zeros((T, H, W), bool)
+    near = np.zeros((T, H, W), bool)
+    splat_coverage(hit, tracks_2d, visible, 0.0)
+    splat_coverage(near, tracks_2d, visible, 1.0)
+    per = hit.reshape(T, -1).mean(1)
+    return {"coverage": float(per.mean()), "coverage_min": float(per.min()),
+            "coverage_r1": float(near.mean()), "coverage_per_frame": per.tolist()}
 
 
 def dense_flow(tracks_2d, visible, src: int, dst: int, H: int, W: int):

@@ -21,7 +21,7 @@ def run_baseline(inp: Inputs, cfg: RunConfig, timings: dict | None = None) -> Re
 
     T, h, w = inp.frames.shape[:3]
     W, H = inp.size_in
-    tr = track_video(inp.frames, cfg.track2d, timings)
+    tr = track_video(inp.frames, cfg.track2d, timings, cfg.device)
     depth = inp.depth if inp.depth is not None else np.ones((T, h, w), np.float32)
     xyz = lift_camera_frame(tr.tracks, depth, inp.K)
     xyz = hold_invisible(xyz, tr.visible)

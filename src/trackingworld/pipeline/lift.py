@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from trackingworld.geometry import unproject
+from trackingworld.tracking2d.flow_tracker import sample_image
 
 
 def sample_maps(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -13,9 +13,7 @@ def sample_maps(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
     N, T = uv.shape[:2]
     out = np.zeros((N, T), np.float32)
     for t in range(T):
-        m = uv[:, t].astype(np.float32)
-        out[:, t] = cv2.remap(maps[t].astype(np.float32), m[:, 0:1], m[:, 1:2], cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REPLICATE)[:, 0]
+        out[:, t] = sample_image(maps[t].astype(np.float32), uv[:, t])
     return out
 
 

@@ -26,6 +26,8 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
 
         if not torch.cuda.is_available():
             raise InputError("--device cuda: this torch build has no CUDA device (install a CUDA build of torch)")
+    if cfg.track2d.tracker == "file" and cfg.inputs.resize:
+        raise InputError(f"{cfg.track2d.tracks_file}: precomputed tracks are at the input resolution; drop --resize")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     inp = load_inputs(cfg.inputs, verbose)

@@ -1,4 +1,4 @@
-"""Choosing query points and running the configured 2D tracker over a video."""
+"""Running the configured 2D tracker over a video: dense tracks of almost all pixels of all frames."""
 
 from __future__ import annotations
 
@@ -9,21 +9,31 @@ import numpy as np
 from trackingworld.config import Track2DConfig
 from trackingworld.errors import InputError
 from trackingworld.tracking2d.base import TrackResult
-from trackingworld.tracking2d.flow_tracker import FlowTracker, FlowTrackerConfig, grid_queries
+from trackingworld.tracking2d.dense import DenseConfig, DenseTracker
+from trackingworld.tracking2d.flow_tracker import FlowTracker, FlowTrackerConfig
+from trackingworld.tracking2d.upsample import UpsampleConfig
 
 
-def make_tracker(cfg: Track2DConfig):
+def make_tracker(cfg: Track2DConfig, verbose: bool = True):
     if cfg.tracker == "flow":
-        return FlowTracker(FlowTrackerConfig(preset=cfg.flow_preset, verbose=True))
-    raise InputError(f"unknown tracker {cfg.tracker!r} (available: flow)")
+        return FlowTracker(FlowTrackerConfig(preset=cfg.flow_preset, verbose=verbose))
+    raise InputError(f"unknown tracker {cfg.tracker!r} (available: flow, file)")
 
 
-def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = None) -> TrackResult:
-    """Track a grid of ``grid_stride`` px from the first frame through the video."""
+def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = None, device: str = "cpu",
+                verbose: bool = True) -> TrackResult:
+    """Dense tracks ``[N,T,2]`` of the video ``frames [T,H,W,3]`` at the processing resolution."""
     t0 = time.perf_counter()
-    T, H, W = frames.shape[:3]
-    tracker = make_tracker(cfg)
-    res = tracker.track(frames, grid_queries(0, H, W, cfg.grid_stride))
+    if cfg.tracker == "file":
+        from trackingworld.io.tracks import load_tracks
+
+        res = load_tracks(cfg.tracks_file, frames.shape[0])
+    else:
+        dense = DenseTracker(make_tracker(cfg, verbose), DenseConfig(
+            stride=cfg.grid_stride, query_stride=cfg.query_stride, first_frame_only=cfg.first_frame_only,
+            cover_radius=cfg.cover_radius, min_component=cfg.min_component, mode=cfg.dense_mode,
+            upsample=UpsampleConfig(mode=cfg.upsampler), device=device, verbose=verbose))
+        res = dense.track_all(frames)
     if timings is not None:
         timings["track2d"] = time.perf_counter() - t0
     return res

@@ -9,21 +9,31 @@ import cv2
 import numpy as np
 
 from trackingworld.progress import Progress
-from trackingworld.tracking2d.base import TrackResult, hold_invisible
+from trackingworld.tracking2d.base import TrackResult
 
 
 @dataclass
 class FlowTrackerConfig:
-    preset: str = "medium"  # DIS preset: ultrafast | fast | medium
-    fb_abs_px: float = 1.0  # forward-backward error allowed: abs + rel * |flow|
+    preset: str = "fine"  # DIS preset: ultrafast | fast | medium | fine
+    fb_abs_px: float = 2.0  # forward-backward error allowed: abs + rel * |flow|
     fb_rel: float = 0.05
+    max_gap: int = 16  # frames a point may stay unobserved before it is lost for good
     verbose: bool = False
 
 
 def _dis(preset: str):
-    p = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-         "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
-    return cv2.DISOpticalFlow_create(p)
+    """OpenCV DIS flow. ``fine`` is the ``medium`` preset at full resolution with denser patches."""
+    presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM, "fine": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+    if preset not in presets:
+        raise ValueError(f"unknown DIS preset {preset!r} (choose from {', '.join(presets)})")
+    dis = cv2.DISOpticalFlow_create(presets[preset])
+    if preset == "fine":
+        dis.setFinestScale(0)
+        dis.setPatchStride(3)
+        dis.setGradientDescentIterations(40)
+        dis.setVariationalRefinementIterations(10)
+    return dis
 
 
 def pairwise_flows(frames: np.ndarray, preset: str = "medium", verbose: bool = False):
@@ -41,16 +51,33 @@ def pairwise_flows(frames: np.ndarray, preset: str = "medium", verbose: bool = F
     return fwd, bwd
 
 
+def sample_image(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear sample of ``img [H,W(,C)]`` at ``pts [M,2]`` (border replicated) -> ``[M(,C)]``.
+
+    OpenCV's remap takes maps below 32767 per side, so points are laid out in rows of 1024."""
+    M = len(pts)
+    cols = 1024
+    rows = max(1, -(-M // cols))
+    m = np.zeros((rows * cols, 2), np.float32)
+    m[:M] = pts
+    m = m.reshape(rows, cols, 2)
+    out = cv2.remap(img, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape((rows * cols,) + img.shape[2:])[:M]
+
+
 def sample_flow(flow: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Bilinear sample of ``flow [H,W,2]`` at ``pts [M,2]`` (border replicated)."""
-    m = pts.astype(np.float32).reshape(-1, 1, 2)
-    out = cv2.remap(flow, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1, 2)
+    """Bilinear sample of ``flow [H,W,2]`` at ``pts [M,2]``."""
+    return sample_image(flow, pts)
 
 
 class FlowTracker:
-    """Chained optical flow with occlusion detection. Tracks are lost at the first occlusion or when they
-    leave the image (a basic tracker: the positions are held afterwards and marked not visible)."""
+    """Chained optical flow with occlusion handling, in both directions of time from each query frame.
+
+    A step is observed when the forward-backward check passes and the point stays in the image. Through a
+    failed step the point moves with its last observed velocity (the estimate through occlusion) and is
+    marked not visible; it is observed again when the check passes and the flow agrees with that velocity.
+    After ``max_gap`` failed steps in a row, or once it leaves the image, it is lost for good.
+    """
 
     def __init__(self, config: FlowTrackerConfig | None = None):
         self.config = config or FlowTrackerConfig()
@@ -61,6 +88,32 @@ class FlowTracker:
         if self._cache is None or self._cache[0] != key:
             self._cache = (key, *pairwise_flows(frames, self.config.preset, self.config.verbose))
         return self._cache[1], self._cache[2]
+
+    def _propagate(self, p0, t0, direction, flows_a, flows_b, T, H, W, tracks, vis, sel):
+        c = self.config
+        p = p0.copy()
+        v = np.zeros_like(p)
+        gap = np.zeros(len(p), int)
+        lost = np.zeros(len(p), bool)
+        t = t0
+        while 0 <= t + direction < T:
+            k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
+            fa = sample_flow(flows_a[k], p)
+            q = p + fa
+            err = np.linalg.norm(fa + sample_flow(flows_b[k], q), axis=1)
+            ok = err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)
+            # after a gap, the flow must also agree with the velocity carried through it
+            ok &= (gap == 0) | (np.linalg.norm(fa - v, axis=1) < c.fb_abs_px + 0.25 * np.linalg.norm(v, axis=1))
+            ok &= ~lost
+            step = np.where(ok[:, None], fa, v)
+            v = np.where(ok[:, None], fa, v)
+            p = p + step
+            inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
+            gap = np.where(ok, 0, gap + 1)
+            lost |= (gap > c.max_gap) | ~inside
+            t += direction
+            tracks[sel, t] = p
+            vis[sel, t] = ok & inside & ~lost
 
     def track(self, frames: np.ndarray, queries: np.ndarray) -> TrackResult:
         T, H, W = frames.shape[:3]
@@ -74,24 +127,11 @@ class FlowTracker:
             p0 = queries[sel, 1:3].astype(np.float32)
             tracks[sel, t0] = p0
             vis[sel, t0] = True
-            for direction, flows_a, flows_b in ((1, fwd, bwd), (-1, bwd, fwd)):
-                p = p0.copy()
-                alive = np.ones(len(sel), bool)
-                t = t0
-                while 0 <= t + direction < T:
-                    k = t if direction == 1 else t - 1  # index of the flow between t and t+direction
-                    fa = sample_flow(flows_a[k], p)
-                    q = p + fa
-                    back = sample_flow(flows_b[k], q)
-                    err = np.linalg.norm(fa + back, axis=1)
-                    ok = err < self.config.fb_abs_px + self.config.fb_rel * np.linalg.norm(fa, axis=1)
-                    inside = (q[:, 0] >= -0.5) & (q[:, 0] < W - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] < H - 0.5)
-                    alive &= ok & inside
-                    p = np.where(alive[:, None], q, p)
-                    t += direction
-                    tracks[sel, t] = p
-                    vis[sel, t] = alive
-        tracks = hold_invisible(tracks, vis)
+            self._propagate(p0, t0, 1, fwd, bwd, T, H, W, tracks, vis, sel)
+            self._propagate(p0, t0, -1, bwd, fwd, T, H, W, tracks, vis, sel)
+        # positions through occlusion are the constant-velocity estimates; outside the image they are
+        # clamped to the last position seen inside (finite, never NaN)
+        tracks = np.where(np.isfinite(tracks), tracks, 0)
         return TrackResult(tracks, vis, vis.astype(np.float32), queries.astype(np.float32))
 
 

@@ -1,0 +1,98 @@
+"""Sparse-to-dense upsampling of grid tracks (paper Sec. 3.2, weight-free).
+
+Every dense pixel takes a convex combination of the displacements of the 5x5 grid tracks around it. The
+weights are computed once, at the query frame, from spatial distance, colour similarity and similarity of
+motion (the pixel's own optical flow to the neighbouring frames against each neighbour's), and applied to
+displacements and visibility at every frame. Neighbours outside the image or not tracked get no weight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class UpsampleConfig:
+    radius: int = 2  # 5x5 neighbourhood
+    sigma_space: float = 1.0  # in grid cells
+    sigma_color: float = 0.08  # RGB in [0,1]
+    sigma_motion: float = 0.75  # pixels of flow difference
+    mode: str = "convex"  # convex | bilinear
+
+
+def grid_offset(stride: int) -> float:
+    return (stride - 1) / 2.0
+
+
+def neighbour_weights(pix: np.ndarray, grid_shape: tuple[int, int], stride: int, image: np.ndarray,
+                      motion: np.ndarray | None, grid_ok: np.ndarray, cfg: UpsampleConfig):
+    """Indices ``[M,K]`` into the flattened grid and convex weights ``[M,K]`` for pixels ``pix [M,2]``.
+
+    image [H,W,3] float in [0,1] at the query frame; motion [H,W,C] per-pixel motion features (flow to the
+    neighbouring frames) or None; grid_ok [gh,gw] bool: grid tracks that exist.
+    """
+    gh, gw = grid_shape
+    H, W = image.shape[:2]
+    off = grid_offset(stride)
+    gx = (pix[:, 0] - off) / stride
+    gy = (pix[:, 1] - off) / stride
+    if cfg.mode == "bilinear":
+        x0, y0 = np.floor(gx).astype(int), np.floor(gy).astype(int)
+        dx, dy = gx - x0, gy - y0
+        ix = np.stack([x0, x0 + 1, x0, x0 + 1], 1)
+        iy = np.stack([y0, y0, y0 + 1, y0 + 1], 1)
+        w = np.stack([(1 - dx) * (1 - dy), dx * (1 - dy), (1 - dx) * dy, dx * dy], 1)
+        ok = (ix >= 0) & (ix < gw) & (iy >= 0) & (iy < gh)
+        ok[ok] &= grid_ok[iy[ok], ix[ok]]
+        w = np.where(ok, w, 0.0)
+    else:
+        r = cfg.radius
+        offs = np.arange(-r, r + 1)
+        cx, cy = np.round(gx).astype(int), np.round(gy).astype(int)
+        ix = (cx[:, None, None] + offs[None, None, :]).repeat(len(offs), 1).reshape(len(pix), -1)
+        iy = (cy[:, None, None] + offs[None, :, None]).repeat(len(offs), 2).reshape(len(pix), -1)
+        ok = (ix >= 0) & (ix < gw) & (iy >= 0) & (iy < gh)
+        ixc, iyc = ix.clip(0, gw - 1), iy.clip(0, gh - 1)
+        ok &= grid_ok[iyc, ixc]
+        # grid node pixel positions (integer pixel nearest to the node centre)
+        nx = np.clip(np.round(off + ixc * stride).astype(int), 0, W - 1)
+        ny = np.clip(np.round(off + iyc * stride).astype(int), 0, H - 1)
+        px = np.clip(np.round(pix[:, 0]).astype(int), 0, W - 1)
+        py = np.clip(np.round(pix[:, 1]).astype(int), 0, H - 1)
+        d2 = ((gx[:, None] - ixc) ** 2 + (gy[:, None] - iyc) ** 2) / (2 * cfg.sigma_space**2)
+        c2 = ((image[ny, nx] - image[py, px][:, None]) ** 2).sum(-1) / (2 * cfg.sigma_color**2)
+        logit = -(d2 + c2)
+        if motion is not None:
+            m2 = ((motion[ny, nx] - motion[py, px][:, None]) ** 2).sum(-1) / (2 * cfg.sigma_motion**2)
+            logit = logit - m2
+        logit = np.where(ok, logit, -np.inf)
+        mx = logit.max(1, keepdims=True)
+        mx = np.where(np.isfinite(mx), mx, 0.0)
+        w = np.where(ok, np.exp(logit - mx), 0.0)
+    s = w.sum(1, keepdims=True)
+    w = np.where(s > 0, w / np.maximum(s, 1e-12), 0.0)
+    return (iy.clip(0, gh - 1) * gw + ix.clip(0, gw - 1)).astype(np.int64), w.astype(np.float32)
+
+
+def apply_weights(pix: np.ndarray, idx: np.ndarray, w: np.ndarray, grid_tracks: np.ndarray, grid_vis: np.ndarray,
+                  t_query: int, device: str = "cpu", chunk: int = 16384):
+    """Dense tracks ``[M,T,2]`` and visibility weight ``[M,T]`` from grid tracks ``[G,T,2]`` / ``[G,T]``."""
+    dev = torch.device(device)
+    gt = torch.as_tensor(grid_tracks, dtype=torch.float32, device=dev)
+    disp = gt - gt[:, t_query : t_query + 1]
+    gv = torch.as_tensor(grid_vis, dtype=torch.float32, device=dev)
+    M, T = len(pix), grid_tracks.shape[1]
+    out = np.empty((M, T, 2), np.float32)
+    vis = np.empty((M, T), np.float32)
+    for a in range(0, M, chunk):
+        b = min(a + chunk, M)
+        i = torch.as_tensor(idx[a:b], device=dev)
+        ww = torch.as_tensor(w[a:b], device=dev)
+        d = (ww[..., None, None] * disp[i]).sum(1)  # [m,T,2]
+        p = torch.as_tensor(pix[a:b], dtype=torch.float32, device=dev)[:, None]
+        out[a:b] = (p + d).cpu().numpy()
+        vis[a:b] = (ww[..., None] * gv[i]).sum(1).cpu().numpy()
+    return out, vis
