@@ -1,0 +1,103 @@
+"""Benchmark of dense 2D tracking (issue 3), run on demand: ``.venv/bin/python benchmarks/bench_track2d.py``.
+
+On the same synthetic scenes in one run: grid + convex upsampler (default) vs grid + bilinear upsampling vs
+direct tracking of every pixel, with and without tracking every frame ("w/o T.E.F"), and the authors'
+rounding rule for covering. Reports 2D delta_avg / occlusion accuracy of the ground-truth queries, coverage,
+time and peak memory (RSS), and writes ``benchmarks/results/track2d.md`` and ``.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trackingworld.config import Track2DConfig
+from trackingworld.eval.dense import coverage
+from trackingworld.eval.match import match_queries
+from trackingworld.eval.tracks import tapvid_2d
+from trackingworld.io.frames import read_frames
+from trackingworld.pipeline.tracks import track_video
+from trackingworld.synth import render_and_write
+
+CONFIGS = {
+    "grid+convex (default)": {},
+    "grid+bilinear": {"upsampler": "bilinear"},
+    "direct every pixel": {"dense_mode": "direct"},
+    "grid+convex, r=0 (rounding)": {"cover_radius": 0.0},
+    "grid+convex, w/o T.E.F": {"first_frame_only": True},
+    "grid+convex, query stride 10": {"query_stride": 10},
+}
+
+
+def peak_rss_gb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
+def evaluate(scene: Path, configs: dict) -> list[dict]:
+    frames, _ = read_frames(scene / "input" / "frames")
+    g = np.load(scene / "gt.npz")
+    T, H, W = frames.shape[:3]
+    rows = []
+    for name, kw in configs.items():
+        t0 = time.perf_counter()
+        tr = track_video(frames, Track2DConfig(**kw), verbose=False)
+        dt = time.perf_counter() - t0
+        m = match_queries(tr.tracks, tr.visible, np.zeros(tr.tracks.shape[:2] + (3,), np.float32),
+                          np.zeros(len(tr.tracks), bool), g["query_frame"], g["query_uv"])
+        a = tapvid_2d(m.uv, m.visible, g["tracks_uv"], g["tracks_vis"], g["query_frame"], (W, H))
+        c = coverage(tr.tracks, tr.visible, H, W)
+        rows.append({"scene": scene.name, "config": name, "seconds": round(dt, 2), "tracks": len(tr.tracks),
+                     "delta_avg": round(a["delta_avg"], 1), "occlusion_acc": round(a["occlusion_acc"], 1),
+                     "coverage": round(c["coverage"], 3), "coverage_r1": round(c["coverage_r1"], 3)})
+        print(rows[-1], file=sys.stderr, flush=True)
+    return rows
+
+
+def speed(tmp: Path, frames: int, size: tuple[int, int]) -> dict:
+    scene = render_and_write(tmp / "speed", "default", 1, frames=frames, size=size, verbose=False)
+    video, _ = read_frames(scene / "input" / "frames")
+    rss0 = peak_rss_gb()
+    t0 = time.perf_counter()
+    tr = track_video(video, Track2DConfig(), verbose=False)
+    return {"frames": frames, "size": f"{size[0]}x{size[1]}", "seconds": round(time.perf_counter() - t0, 1),
+            "tracks": len(tr.tracks), "peak_rss_gb": round(peak_rss_gb(), 2), "rss_before_gb": round(rss0, 2)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "track2d"))
+    ap.add_argument("--no-speed", action="store_true")
+    a = ap.parse_args()
+    rows, sp = [], None
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for preset in ("default", "hard"):
+            scene = render_and_write(tmp / preset, preset, 0, verbose=False)
+            rows += evaluate(scene, CONFIGS)
+        if not a.no_speed:
+            sp = speed(tmp, 30, (854, 480))
+            print(sp, file=sys.stderr)
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps({"rows": rows, "speed": sp}, indent=2) + "\n")
+    lines = ["| scene | config | delta_avg | occl. acc | coverage | coverage r<=1px | tracks | time [s] |",
+             "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['scene']} | {r['config']} | {r['delta_avg']} | {r['occlusion_acc']} | {r['coverage']} | "
+              f"{r['coverage_r1']} | {r['tracks']} | {r['seconds']} |" for r in rows]
+    if sp:
+        lines += ["", f"Speed: {sp['frames']} frames at {sp['size']}: {sp['seconds']} s, {sp['tracks']} tracks, "
+                  f"peak RSS {sp['peak_rss_gb']} GB (process, including the rendering before it)."]
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+import numpy as np
+import pytest
+
+from trackingworld.io.tracks import load_tracks
+from trackingworld.tracking2d import FlowTracker
+from trackingworld.tracking2d.dense import DenseConfig, DenseTracker, new_track_pixels, splat_coverage
+from trackingworld.tracking2d.flow_tracker import grid_queries
+from trackingworld.tracking2d.upsample import UpsampleConfig, apply_weights, neighbour_weights
+
+
+def textured_shift_video(T=6, H=64, W=80, dx=1.5, seed=0):
+    """A smooth random texture translating right by dx px per frame."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    big = cv2.GaussianBlur(rng.random((H, W + int(dx * T) + 8, 3)).astype(np.float32), (0, 0), 1.5)
+    big = (255 * (big - big.min()) / (big.max() - big.min())).astype(np.uint8)
+    frames = []
+    for t in range(T):
+        M = np.float32([[1, 0, dx * t], [0, 1, 0]])  # content moves right by dx per frame
+        frames.append(cv2.warpAffine(big, M, (big.shape[1], H), flags=cv2.INTER_LINEAR)[:, :W])
+    return np.stack(frames)
+
+
+@pytest.mark.parametrize("mode", ["convex", "bilinear"])
+def test_upsampler_reproduces_common_motion(mode):
+    H, W, s, T = 20, 24, 4, 3
+    g = grid_queries(0, H, W, s)
+    gh, gw = len(np.arange(1.5, H, s)), len(np.arange(1.5, W, s))
+    disp = np.array([[0, 0], [2.0, -1.0], [4.0, -2.0]])
+    grid_tracks = g[:, None, 1:] + disp[None]
+    rng = np.random.default_rng(0)
+    img = rng.random((H, W, 3))
+    ys, xs = np.mgrid[0:H, 0:W]
+    pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+    idx, w = neighbour_weights(pix, (gh, gw), s, img, None, np.ones((gh, gw), bool), UpsampleConfig(mode=mode))
+    np.testing.assert_allclose(w.sum(1), 1, atol=1e-5)  # convex everywhere, also at the borders
+    tr, vis = apply_weights(pix, idx, w, grid_tracks, np.ones((gh * gw, T), bool), 0)
+    np.testing.assert_allclose(tr, pix[:, None] + disp[None], atol=1e-4)
+    np.testing.assert_allclose(vis, 1, atol=1e-5)
+
+
+def test_convex_weights_follow_colour_edges():
+    # left half black, right half white: a pixel next to the edge takes its weights from its own side
+    H, W, s = 16, 16, 4
+    img = np.zeros((H, W, 3))
+    img[:, 8:] = 1
+    gh = gw = 4
+    idx, w = neighbour_weights(np.array([[7.0, 8.0]]), (gh, gw), s, img, None, np.ones((gh, gw), bool),
+                               UpsampleConfig())
+    node_x = 1.5 + (idx[0] % gw) * s
+    assert w[0][node_x > 8].sum() < 0.05
+
+
+def test_components_below_tau_dropped():
+    m = np.zeros((20, 20), bool)
+    m[0:10, 0:10] = True  # 100 px
+    m[15:17, 15:17] = True  # 4 px
+    pix = new_track_pixels(m, 50)
+    assert len(pix) == 100 and pix[:, 0].max() < 10
+
+
+def test_splat_coverage_radius():
+    cov = np.zeros((1, 5, 5), bool)
+    splat_coverage(cov, np.array([[[2.0, 2.0]]]), np.array([[True]]), 1.0)
+    assert cov.sum() == 5  # centre + 4-neighbours
+    cov[:] = False
+    splat_coverage(cov, np.array([[[2.4, 2.0]]]), np.array([[True]]), 0.0)
+    assert cov.sum() == 1 and cov[0, 2, 2]
+
+
+def test_flow_tracker_both_directions_and_leaving():
+    frames = textured_shift_video(dx=1.5)
+    q = np.array([[3, 40.0, 30.0], [0, 77.0, 30.0]], np.float32)
+    r = FlowTracker().track(frames, q)
+    expect_x = 40.0 + 1.5 * (np.arange(6) - 3)
+    np.testing.assert_allclose(r.tracks[0, :, 0], expect_x, atol=0.3)
+    assert r.visible[0].all()
+    # the second point leaves the image on the right at frame 2 and is lost
+    assert r.visible[1, :2].all() and not r.visible[1, 2:].any()
+    assert np.isfinite(r.tracks).all()
+
+
+def test_dense_tracker_covers_and_tracks_backward(tiny_scene):
+    import imageio.v3 as iio
+
+    frames = np.stack([iio.imread(p) for p in sorted((tiny_scene / "input" / "frames").glob("*.png"))])
+    dt = DenseTracker(FlowTracker(), DenseConfig(verbose=False))
+    r = dt.track_all(frames)
+    qf = r.queries[:, 0].astype(int)
+    assert (qf == 0).sum() == 96 * 128  # every pixel of the first frame
+    later = qf > 0
+    assert later.any()  # new tracks from later frames (emerging / disoccluded content)
+    # some of them are observed before their query frame: tracked backward in time
+    before = r.visible & (np.arange(frames.shape[0])[None] < qf[:, None])
+    assert before[later].any()
+    assert min(dt.stats["coverage_per_frame"]) > 0.9
+
+
+def test_load_tracks_layouts(tmp_path):
+    T, N = 4, 3
+    rng = np.random.default_rng(0)
+    tr = rng.uniform(0, 50, (T, N, 2)).astype(np.float32)
+    vis = np.ones((T, N), bool)
+    vis[2, 1] = False
+    q = np.array([[0, *tr[0, 0]], [1, *tr[1, 1]], [0, *tr[0, 2]]], np.float32)
+    np.savez(tmp_path / "cot.npz", tracks=tr[None], visibility=vis[None].astype(np.float32), queries=q[None])
+    r = load_tracks(tmp_path / "cot.npz", T)
+    assert r.tracks.shape == (N, T, 2) and not r.visible[1, 2]
+    np.testing.assert_allclose(r.tracks[0], tr[:, 0])
+    np.savez(tmp_path / "tap.npz", tracks=np.swapaxes(tr, 0, 1), occluded=~vis.T)
+    r2 = load_tracks(tmp_path / "tap.npz", T)
+    np.testing.assert_array_equal(r2.visible, r.visible)
+    from trackingworld.errors import InputError
+
+    with pytest.raises(InputError, match="frames"):
+        load_tracks(tmp_path / "cot.npz", T + 1)
+    np.savez(tmp_path / "bad.npz", foo=np.zeros(3))
+    with pytest.raises(InputError, match="unknown tracks layout"):
+        load_tracks(tmp_path / "bad.npz", T)
+
+
+def test_track2d_cli(tiny_scene, tmp_path):
+    from trackingworld.cli.main import main
+
+    out = tmp_path / "t.npz"
+    assert main(["track2d", str(tiny_scene / "input" / "frames"), "--out", str(out), "--quiet",
+                 "--max-frames", "4"]) == 0
+    z = np.load(out)
+    assert z["tracks"].shape[1] == 4 and z["visible"].dtype == bool and z["queries"].shape[1] == 3
