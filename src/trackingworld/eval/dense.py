@@ -6,13 +6,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from trackingworld.geometry import invert_pose, transform
+from trackingworld.tracking2d.dense import splat_coverage
 
 
 def coverage(tracks_2d: np.ndarray, visible: np.ndarray, H: int, W: int) -> dict:
     """Fraction of the pixels of each frame hit by a visible track (rounded position), averaged over frames;
     ``coverage_r1``: the fraction with a visible track within 1 px (the tracker's covering rule)."""
-    from trackingworld.tracking2d.dense import splat_coverage
-
     T = visible.shape[1]
     hit = np.zeros((T, H, W), bool)
     near = np.zeros((T, H, W), bool)

@@ -6,6 +6,7 @@ frame's camera: object and camera motion are not separated at all.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from trackingworld.config import RunConfig
@@ -17,8 +18,6 @@ from trackingworld.tracking2d.base import hold_invisible
 
 
 def run_baseline(inp: Inputs, cfg: RunConfig, timings: dict | None = None) -> Result:
-    import cv2
-
     T, h, w = inp.frames.shape[:3]
     W, H = inp.size_in
     tr = track_video(inp.frames, cfg.track2d, timings, cfg.device)

@@ -36,7 +36,7 @@ def _dis(preset: str):
     return dis
 
 
-def pairwise_flows(frames: np.ndarray, preset: str = "medium", verbose: bool = False):
+def pairwise_flows(frames: np.ndarray, preset: str = "fine", verbose: bool = False):
     """Forward flows ``fwd[t]`` (t -> t+1) and backward flows ``bwd[t]`` (t+1 -> t), each [T-1,H,W,2]."""
     gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
     dis = _dis(preset)
@@ -129,9 +129,8 @@ class FlowTracker:
             vis[sel, t0] = True
             self._propagate(p0, t0, 1, fwd, bwd, T, H, W, tracks, vis, sel)
             self._propagate(p0, t0, -1, bwd, fwd, T, H, W, tracks, vis, sel)
-        # positions through occlusion are the constant-velocity estimates; outside the image they are
-        # clamped to the last position seen inside (finite, never NaN)
-        tracks = np.where(np.isfinite(tracks), tracks, 0)
+        # where a point is not observed (occluded, lost, outside the image) its position is the
+        # constant-velocity extrapolation from its last observed step
         return TrackResult(tracks, vis, vis.astype(np.float32), queries.astype(np.float32))
 
 
