@@ -11,7 +11,8 @@ def test_run_and_eval_end_to_end(tiny_scene, tmp_path, capsys):
     inp = tiny_scene / "input"
     out = tmp_path / "res"
     rc = main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
-               "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet"])
+               "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet",
+               "--method", "baseline"])
     assert rc == 0
     r = load_result(out)
     assert r.tracks_2d.shape[1] == 10 and r.depth.shape == (10, 96, 128)
@@ -59,5 +60,5 @@ def test_video_input(tiny_scene, tmp_path):
     video = tmp_path / "v.mp4"
     iio.imwrite(video, frames, plugin="pyav", codec="libx264", fps=10)
     out = tmp_path / "res"
-    assert main(["run", str(video), "--out", str(out), "--quiet", "--frame-stride", "2"]) == 0
+    assert main(["run", str(video), "--out", str(out), "--quiet", "--frame-stride", "2", "--method", "baseline"]) == 0
     assert load_result(out).num_frames == 5

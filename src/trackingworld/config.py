@@ -32,12 +32,57 @@ class Track2DConfig:
 
 
 @dataclass
+class OptimConfig:
+    """World-centric lifting (paper Sec. 3.3 and appendix). Losses are means over their own terms, as in the
+    authors' code; pixel errors are in processing-resolution pixels, depths and offsets in metres."""
+
+    solver: str = "lm"  # lm (structured Gauss-Newton / Levenberg-Marquardt, default) | adam (paper, reference)
+    # track labelling from the coarse masks
+    mask_margin_px: int = 2  # erosion of both mask regions; tracks in the band between are "ambiguous"
+    # stage 1: initial poses
+    clip_len: int = 5
+    inlier_px: float = 1.0  # tau: mean reprojection error (px) under which a static track is an inlier
+    max_clip_points: int = 3000  # static tracks per clip used for the clip's poses (random subset)
+    # stage 2: dynamic background refinement
+    lambda_ba: float = 1.0
+    lambda_dc: float = 1.0
+    dc_space: str = "log"  # stage-2 depth residual: log(z / D) (default) | metres (the paper as written)
+    lambda_asap: float = 5.0
+    epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object
+    offset_stat: str = "max"  # max (paper) | p90: statistic of ||O(i,t)|| over the visible frames
+    # stage 3: dynamic objects
+    lambda_arap: float = 100.0
+    lambda_ts: float = 10.0
+    arap_k: int = 4
+    dc_target: str = "prior"  # prior: the raw prior (paper) | aligned: prior rescaled by the static tracks (appendix)
+    # speed-up (appendix): one optimised static track per (query frame, round(xy / cell)) cell
+    downsample_cell: int = 8  # 0: optimise every static track
+    idw_k: int = 3
+    dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
+    # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.
+    # solvers
+    lm_iters: int = 15
+    lm_tol: float = 1e-6  # stop when the relative decrease of the loss falls below this
+    adam_iters: tuple[int, int, int] = (1000, 2000, 1000)  # stages 1, 2, 3 (the paper's schedule)
+    adam_lr: float = 1e-3
+    dtype: str = "float64"
+    # ablations of the paper's Table (all False = full method)
+    no_pose_init: bool = False
+    no_inliers: bool = False
+    no_offsets: bool = False
+    no_depth_consistency: bool = False
+    no_dynamic_opt: bool = False
+    verbose: bool = True
+
+
+@dataclass
 class RunConfig:
-    method: str = "baseline"
+    method: str = "trackingworld"
     device: str = "cpu"
     seed: int = 0
     inputs: InputConfig = field(default_factory=InputConfig)
     track2d: Track2DConfig = field(default_factory=Track2DConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
 
     def to_dict(self) -> dict:
         return asdict(self)

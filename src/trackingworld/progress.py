@@ -21,3 +21,15 @@ class Progress:
         elif done >= self.total or pct >= self._last_pct + 25:
             self._last_pct = pct
             print(msg, file=sys.stderr, flush=True)
+
+
+def stage_logger(enabled: bool = True, every: int = 1):
+    """A ``log(stage, it, loss)`` callable printing one line per ``every`` iterations on stderr, or None."""
+    if not enabled:
+        return None
+
+    def log(stage: str, it: int, loss: float) -> None:
+        if it % every == 0:
+            print(f"[{stage}] iter {it} loss {loss:.6g}", file=sys.stderr, flush=True)
+
+    return log

@@ -36,12 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--depth", help=".npy/.npz [T,H,W] metres, or folder of 16-bit PNG millimetres")
     r.add_argument("--masks", help="folder of PNGs (non-zero = dynamic) or .npy bool [T,H,W]")
     r.add_argument("--intrinsics", help="text file with a 3x3 matrix or fx,fy,cx,cy; or inline fx,fy,cx,cy")
-    r.add_argument("--method", default="baseline", help="pipeline (baseline: camera-centric lifting)")
+    r.add_argument("--method", default="trackingworld", choices=["trackingworld", "baseline"],
+                   help="trackingworld (the full method) or baseline (camera-centric lifting, no optimisation)")
     r.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     r.add_argument("--max-frames", type=int, default=None)
     r.add_argument("--frame-stride", type=int, default=1)
     r.add_argument("--resize", type=int, default=None, help="long side of the processing resolution")
     _track_args(r)
+    _optim_args(r)
     r.add_argument("--quiet", action="store_true")
 
     k = sub.add_parser("track2d", help="dense 2D tracking of almost all pixels of all frames")
@@ -102,6 +104,45 @@ def cmd_track2d(a) -> int:
     return 0
 
 
+ABLATIONS = {
+    "no_pose_init": "w/o pose initialisation (stage 1 skipped, identity poses)",
+    "no_inliers": "w/o inlier selection in stage 1",
+    "no_offsets": "w/o the offsets O_static (plain least squares in stage 2, no moving-background test)",
+    "no_depth_consistency": "w/o the depth consistency loss (stages 2 and 3)",
+    "no_dynamic_opt": "w/o dynamic object tracking (dynamic tracks lifted with the raw prior)",
+}
+
+
+def _optim_args(p: argparse.ArgumentParser) -> None:
+    from trackingworld.config import OptimConfig
+
+    d = OptimConfig()
+    g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
+    g.add_argument("--solver", default=d.solver, choices=["lm", "adam"],
+                   help="lm: structured Gauss-Newton/Levenberg-Marquardt (fast); adam: the paper's schedule")
+    g.add_argument("--clip-len", type=int, default=d.clip_len)
+    g.add_argument("--inlier-px", type=float, default=d.inlier_px, help="stage-1 inlier threshold tau (px)")
+    g.add_argument("--epsilon", type=float, default=d.epsilon, help="offset (m) that marks a moving background")
+    g.add_argument("--offset-stat", default=d.offset_stat, choices=["max", "p90"])
+    g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
+    g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
+    g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
+    g.add_argument("--dc-target", default=d.dc_target, choices=["aligned", "prior"])
+    g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,
+                   help="optimise one static track per cell of this many px (0: all)")
+    for name, text in ABLATIONS.items():
+        g.add_argument("--" + name.replace("_", "-"), action="store_true", help=text)
+
+
+def _optim_config(a):
+    from trackingworld.config import OptimConfig
+
+    return OptimConfig(
+        solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
+        lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
+        downsample_cell=a.downsample_cell, verbose=not a.quiet, **{k: getattr(a, k) for k in ABLATIONS})
+
+
 def cmd_synth(a) -> int:
     from trackingworld.synth import render_and_write
 
@@ -118,7 +159,7 @@ def cmd_run(a) -> int:
         method=a.method, device=a.device,
         inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, intrinsics=a.intrinsics,
                            max_frames=a.max_frames, frame_stride=a.frame_stride, resize=a.resize),
-        track2d=_track_config(a),
+        track2d=_track_config(a), optim=_optim_config(a),
     )
     run(cfg, a.out, verbose=not a.quiet)
     print(f"result written to {Path(a.out) / 'result.npz'}")

@@ -12,9 +12,10 @@ from trackingworld.io.atomic import write_json
 from trackingworld.io.result import CONFIG_FILE, Result, save_result
 from trackingworld.pipeline.baseline import run_baseline
 from trackingworld.pipeline.inputs import load_inputs
+from trackingworld.pipeline.world import run_trackingworld
 
-METHODS = {"baseline": run_baseline}
-DEFAULT_METHOD = "baseline"  # becomes the full pipeline once the optimiser lands
+METHODS = {"trackingworld": run_trackingworld, "baseline": run_baseline}
+DEFAULT_METHOD = "trackingworld"
 
 
 def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:

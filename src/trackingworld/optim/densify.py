@@ -1,0 +1,71 @@
+"""The speed-up and the video depth of the appendix: choose the static tracks to optimise, and spread
+what the optimised tracks learnt (a local depth scale) to every other track and every pixel.
+
+Both use one mechanism, the appendix's propagation of a local scale ratio ``r = z_optimised / z_prior``:
+the k nearest reference tracks in the image plane, weighted by inverse distance between the points lifted
+with the raw prior (so that neighbours across a depth edge count little). Rebuilding a dense static track as
+its own pixel ray at the propagated depth keeps it exactly on its pixel at the query frame, where averaging
+the neighbours' 3D positions (the authors' rebuild) would blur detail below the downsampling cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from trackingworld.geometry import unproject
+
+
+def cell_representatives(queries: np.ndarray, cell: int) -> np.ndarray:
+    """Indices of one track per (query frame, round(x / cell), round(y / cell)) key (the first one).
+    queries [N,3] (t, x, y). ``cell <= 1`` keeps every track."""
+    if cell <= 1:
+        return np.arange(len(queries))
+    key = np.stack([queries[:, 0], np.round(queries[:, 1] / cell), np.round(queries[:, 2] / cell)], 1)
+    _, first = np.unique(key.astype(np.int64), axis=0, return_index=True)
+    return np.sort(first)
+
+
+def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, query_uv: np.ndarray,
+                    query_depth: np.ndarray, K: np.ndarray, k: int = 4, eps: float = 1e-3) -> np.ndarray:
+    """Inverse-distance-weighted ratio ``[Q]`` at query pixels of one frame.
+
+    ref_uv [R,2] px, ref_depth [R] prior metres, ref_ratio [R]; query_uv [Q,2], query_depth [Q]. Neighbours
+    are the k nearest references in the image, weights 1 / (3D distance of the prior-lifted points + eps).
+    """
+    if len(ref_uv) == 0:
+        return np.ones(len(query_uv))
+    k = min(k, len(ref_uv))
+    _, idx = cKDTree(ref_uv).query(query_uv, k=k, workers=-1)
+    idx = idx.reshape(len(query_uv), k)
+    P = unproject(query_uv, query_depth, K)
+    Q = unproject(ref_uv, ref_depth, K)
+    d = np.linalg.norm(P[:, None] - Q[idx], axis=-1)
+    w = 1.0 / (d + eps)
+    return (w * ref_ratio[idx]).sum(1) / w.sum(1)
+
+
+def thin_references(uv: np.ndarray, cell: float) -> np.ndarray:
+    """Indices keeping one reference per ``cell`` px square (fewer, evenly spread references)."""
+    if cell <= 1 or len(uv) == 0:
+        return np.arange(len(uv))
+    _, first = np.unique(np.floor(uv / cell).astype(np.int64), axis=0, return_index=True)
+    return first
+
+
+def ratio_maps(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, ref_vis: np.ndarray,
+               prior: np.ndarray, K: np.ndarray, k: int = 4, cell: float = 4.0) -> np.ndarray:
+    """Per-pixel scale ratio ``[T,H,W]`` from reference tracks (uv [R,T,2], depth [R,T] prior, ratio [R,T],
+    vis [R,T]) over the prior ``[T,H,W]``: the appendix's consistent video depth is ``ratio * prior``."""
+    T, H, W = prior.shape
+    ys, xs = np.mgrid[0:H, 0:W]
+    pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+    out = np.ones((T, H, W), np.float32)
+    for t in range(T):
+        v = np.flatnonzero(ref_vis[:, t] & np.isfinite(ref_ratio[:, t]))
+        if len(v) == 0:
+            continue
+        v = v[thin_references(ref_uv[v, t], cell)]
+        out[t] = propagate_ratio(ref_uv[v, t], ref_depth[v, t], ref_ratio[v, t], pix, prior[t].ravel(), K,
+                                 k).reshape(H, W)
+    return out

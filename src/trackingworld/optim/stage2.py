@@ -1,0 +1,330 @@
+"""Stage 2: dynamic background refinement (paper Sec. 3.3 and appendix).
+
+Unknowns: world-to-camera poses (frame 0 fixed, it sets the gauge), static points ``X [N,3]`` and per-
+observation offsets ``O(i,t)``; the camera sees ``R_t (X_i + O(i,t)) + t_t``. The objective, a mean over the
+visible observations, is
+
+    lambda_ba |pi(.) - uv|^2 [px^2]  +  lambda_dc (log z(.) - log D)^2  +  lambda_asap ||O||  [m].
+
+The depth term is on log depth by default (``dc_space``): the prior's errors are multiplicative, and a
+residual in metres lets far points dominate while (z - D) / D biases the scale low; ``metres`` is the paper
+as written.
+
+``||O||`` is taken as |tangential| + |radial| part in the camera (the paper's L1 depends on the world axes).
+
+Structured solver (default). Each offset enters one observation only, so it can be minimised in closed
+form: an offset of o metres across the ray moves the projection by o f / z pixels, and minimising
+``lambda_ba (r - o f/z)^2 + lambda_asap o`` over o >= 0 gives the Huber cost of r with threshold
+``c = lambda_asap z / (2 lambda_ba f)`` px (likewise ``lambda_asap z / (2 lambda_dc)`` for log depth). What remains
+is bundle adjustment over poses and points with a Huber kernel, solved by Levenberg-Marquardt with iteratively
+reweighted normal equations, the points eliminated by the Schur complement (3x3 blocks) and the reduced pose
+system solved by block-Jacobi preconditioned conjugate gradients (memory and time linear in the number of
+observations). The offsets are then read off the final residuals: ``|O| = (r - c) z / f``.
+
+Reference solver (``adam``, the paper's way): Adam on poses, points and explicit offsets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from trackingworld.config import OptimConfig
+from trackingworld.optim import lie
+
+
+@dataclass
+class BAProblem:
+    """Observations of N points in T frames, flattened: pt, fr [M] long; uv [M,2] px; depth [M] prior metres."""
+
+    pt: torch.Tensor
+    fr: torch.Tensor
+    uv: torch.Tensor
+    depth: torch.Tensor
+    n_points: int
+    n_frames: int
+    K: torch.Tensor
+    lambda_ba: float = 1.0
+    lambda_dc: float = 1.0
+    lambda_asap: float = 5.0
+    offsets: bool = True  # False: the "w/o O_static" ablation, plain least squares
+    log_dc: bool = True  # depth residual log(z / D) instead of z - D metres (see OptimConfig.dc_space)
+
+    @staticmethod
+    def from_tracks(uv: np.ndarray, depth: np.ndarray, vis: np.ndarray, K: np.ndarray, cfg: OptimConfig,
+                    dtype, device) -> BAProblem:
+        """uv [N,T,2], depth [N,T], vis [N,T] -> flattened observations."""
+        pt, fr = np.nonzero(vis)
+        as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
+        return BAProblem(
+            torch.as_tensor(pt, device=device), torch.as_tensor(fr, device=device), as_t(uv[pt, fr]),
+            as_t(depth[pt, fr]), vis.shape[0], vis.shape[1], as_t(K), cfg.lambda_ba,
+            0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap, not cfg.no_offsets,
+            cfg.dc_space == "log")
+
+    @property
+    def focal(self) -> torch.Tensor:
+        return torch.sqrt(self.K[0, 0] * self.K[1, 1])
+
+    def thresholds(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Huber thresholds from the eliminated offsets: pixels [M] and depth-residual units [M]."""
+        c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * self.focal)
+        c_d = self.lambda_asap * self.depth_scale(z) / (2 * max(self.lambda_dc, 1e-12))
+        return c_uv, c_d
+
+    def depth_scale(self, z: torch.Tensor) -> torch.Tensor:
+        """Metres of camera depth per unit of the depth residual at depth z [M]."""
+        return z.clamp_min(1e-3) if self.log_dc else torch.ones_like(z)
+
+    def depth_residual(self, z: torch.Tensor) -> torch.Tensor:
+        if self.log_dc:
+            return torch.log(z.clamp_min(1e-3)) - torch.log(self.depth.clamp_min(1e-3))
+        return z - self.depth
+
+
+def _huber(r: torch.Tensor, c) -> torch.Tensor:
+    return torch.where(r <= c, r * r, 2 * c * r - c * c)
+
+
+def residuals(R, t, X, p: BAProblem):
+    """Camera points Y [M,3], pixel residuals [M,2], depth residuals [M]."""
+    Y = lie.transform(R[p.fr], t[p.fr], X[p.pt])
+    return Y, lie.project(Y, p.K) - p.uv, p.depth_residual(Y[:, 2])
+
+
+def loss(R, t, X, p: BAProblem) -> torch.Tensor:
+    """The stage-2 objective with every offset at its closed-form optimum (a mean over observations)."""
+    Y, r_uv, r_d = residuals(R, t, X, p)
+    e_uv, e_d = r_uv.norm(dim=-1), r_d.abs()
+    if not p.offsets:
+        return (p.lambda_ba * e_uv**2 + p.lambda_dc * e_d**2).mean()
+    c_uv, c_d = p.thresholds(Y[:, 2])
+    cost = p.lambda_ba * _huber(e_uv, c_uv)
+    if p.lambda_dc > 0:
+        cost = cost + p.lambda_dc * _huber(e_d, c_d)
+    return cost.mean()
+
+
+def offset_norms(R, t, X, p: BAProblem) -> torch.Tensor:
+    """||O(i,t)|| [M] metres at the closed-form optimum (0 with offsets switched off)."""
+    Y, r_uv, r_d = residuals(R, t, X, p)
+    if not p.offsets:
+        return torch.zeros_like(r_d)
+    c_uv, c_d = p.thresholds(Y[:, 2])
+    o_t = (r_uv.norm(dim=-1) - c_uv).clamp_min(0) * Y[:, 2].clamp_min(1e-3) / p.focal
+    o_r = (r_d.abs() - c_d).clamp_min(0) * p.depth_scale(Y[:, 2]) if p.lambda_dc > 0 else torch.zeros_like(o_t)
+    return o_t + o_r
+
+
+def explicit_objective(R, t, X, O, p: BAProblem) -> torch.Tensor:
+    """The objective with explicit world offsets ``O [M,3]`` (what the Adam reference minimises)."""
+    Y = lie.transform(R[p.fr], t[p.fr], X[p.pt] + O)
+    r_uv = lie.project(Y, p.K) - p.uv
+    r_d = p.depth_residual(Y[:, 2])
+    dY = (R[p.fr] @ O[..., None])[..., 0]
+    ray = Y / Y[:, 2:].clamp_min(1e-3)
+    o_r = (dY * ray).sum(-1) / (ray * ray).sum(-1)
+    o_t = (dY - o_r[:, None] * ray).norm(dim=-1)
+    asap = (o_t + o_r.abs()) if p.offsets else torch.zeros_like(o_r)
+    return (p.lambda_ba * (r_uv**2).sum(-1) + p.lambda_dc * r_d**2 + p.lambda_asap * asap).mean()
+
+
+def closed_form_offsets(R, t, X, p: BAProblem) -> torch.Tensor:
+    """World offsets ``O [M,3]`` of the structured solver: the residual beyond the Huber threshold moved
+    across the ray (pixels) and along it (depth)."""
+    Y, r_uv, r_d = residuals(R, t, X, p)
+    O = torch.zeros_like(Y)
+    if not p.offsets:
+        return O
+    c_uv, c_d = p.thresholds(Y[:, 2])
+    e = r_uv.norm(dim=-1).clamp_min(1e-12)
+    s = -(1 - (c_uv / e).clamp(max=1))[:, None] * r_uv  # pixel shift that leaves a residual of c
+    J = lie.project_jacobian(Y, p.K)
+    dY = (J.transpose(-1, -2) @ torch.linalg.solve(J @ J.transpose(-1, -2), s[..., None]))[..., 0]
+    if p.lambda_dc > 0:
+        o_r = -torch.sign(r_d) * (r_d.abs() - c_d).clamp_min(0) * p.depth_scale(Y[:, 2])
+        dY = dY + o_r[:, None] * Y / Y[:, 2:].clamp_min(1e-3)
+    return (R[p.fr].transpose(-1, -2) @ dY[..., None])[..., 0]
+
+
+def _linearize(R, t, X, p: BAProblem):
+    Y, r_uv, r_d = residuals(R, t, X, p)
+    M = Y.shape[0]
+    w_uv = torch.ones_like(r_d)
+    w_d = torch.ones_like(r_d)
+    if p.offsets:  # IRLS weights of the Huber kernels
+        c_uv, c_d = p.thresholds(Y[:, 2])
+        w_uv = (c_uv / r_uv.norm(dim=-1).clamp_min(1e-12)).clamp(max=1)
+        w_d = (c_d / r_d.abs().clamp_min(1e-12)).clamp(max=1)
+    W = torch.stack([p.lambda_ba * w_uv, p.lambda_ba * w_uv, p.lambda_dc * w_d], -1) / M
+    ez = torch.zeros_like(Y[:, None])
+    ez[..., 2] = 1.0 / p.depth_scale(Y[:, 2])[:, None]
+    JY = torch.cat([lie.project_jacobian(Y, p.K), ez], 1)  # [M,3,3]
+    r = torch.cat([r_uv, r_d[:, None]], 1)
+    Jc = JY @ lie.pose_jacobian(Y)  # [M,3,6]
+    Jx = JY @ R[p.fr]  # [M,3,3]
+    WJc, WJx = W[..., None] * Jc, W[..., None] * Jx
+    T, N = p.n_frames, p.n_points
+    Hcc = torch.zeros(T, 6, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, Jc.transpose(1, 2) @ WJc)
+    Hxx = torch.zeros(N, 3, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, Jx.transpose(1, 2) @ WJx)
+    Hcx = Jc.transpose(1, 2) @ WJx  # [M,6,3]
+    gc = torch.zeros(T, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, _mv(WJc, r))
+    gx = torch.zeros(N, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, _mv(WJx, r))
+    return Hcc, Hxx, Hcx, gc, gx
+
+
+def _mv(J: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """J^T r for stacks J [M,k,n], r [M,k] -> [M,n]."""
+    return (J.transpose(1, 2) @ r[..., None])[..., 0]
+
+
+def _damp(H: torch.Tensor, mu: float) -> torch.Tensor:
+    d = torch.diagonal(H, dim1=-2, dim2=-1)
+    return H + torch.diag_embed(mu * d + 1e-12 * (1 + d.abs().amax(-1, keepdim=True)))
+
+
+def _pcg(matvec, rhs, precond, iters: int, tol: float = 1e-10):
+    x = torch.zeros_like(rhs)
+    r = rhs.clone()
+    z = precond(r)
+    d = z.clone()
+    rz = (r * z).sum()
+    r0 = float(rhs.norm()) + 1e-30
+    for _ in range(iters):
+        Ad = matvec(d)
+        alpha = rz / (d * Ad).sum().clamp_min(1e-300)
+        x = x + alpha * d
+        r = r - alpha * Ad
+        if float(r.norm()) < tol * r0:
+            break
+        z = precond(r)
+        rz_new = (r * z).sum()
+        d = z + (rz_new / rz) * d
+        rz = rz_new
+    return x
+
+
+def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor):
+    """One damped Gauss-Newton step: the points eliminated (Schur complement), poses by PCG."""
+    Hxx_inv = torch.linalg.inv(_damp(Hxx, mu))
+    Hcc_d = _damp(Hcc, mu)
+    Hinv_m = Hxx_inv[p.pt]  # [M,3,3]
+    T = p.n_frames
+    fmask = free[:, None].to(Hcc.dtype)
+
+    def matvec(v):
+        v = v * fmask
+        a = (Hcx.transpose(1, 2) @ v[p.fr][..., None])[..., 0]
+        b = torch.zeros_like(gx).index_add_(0, p.pt, a)
+        c = (Hxx_inv @ b[..., None])[..., 0]
+        d = (Hcx @ c[p.pt][..., None])[..., 0]
+        out = (Hcc_d @ v[..., None])[..., 0] - torch.zeros_like(v).index_add_(0, p.fr, d)
+        return out * fmask
+
+    blocks = Hcc_d - torch.zeros_like(Hcc).index_add_(0, p.fr, Hcx @ Hinv_m @ Hcx.transpose(1, 2))
+    eye = torch.eye(6, dtype=Hcc.dtype, device=Hcc.device)
+    blocks = torch.where(free[:, None, None], blocks, eye)
+    B_inv = torch.linalg.inv(blocks)
+    y = (Hxx_inv @ gx[..., None])[..., 0]
+    rhs = -(gc - torch.zeros_like(gc).index_add_(0, p.fr, (Hcx @ y[p.pt][..., None])[..., 0])) * fmask
+    dc = _pcg(matvec, rhs, lambda r: (B_inv @ r[..., None])[..., 0], iters=max(60, 6 * T))
+    dc = dc * fmask
+    back = torch.zeros_like(gx).index_add_(0, p.pt, (Hcx.transpose(1, 2) @ dc[p.fr][..., None])[..., 0])
+    dx = -(Hxx_inv @ (gx + back)[..., None])[..., 0]
+    return dc, dx
+
+
+def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None):
+    """Levenberg-Marquardt on poses and points (see the module docstring). Frame 0 stays fixed."""
+    free = torch.ones(p.n_frames, dtype=torch.bool, device=R.device)
+    free[0] = False
+    cost = float(loss(R, t, X, p))
+    mu = 1e-4
+    for it in range(iters):
+        Hcc, Hxx, Hcx, gc, gx = _linearize(R, t, X, p)
+        while True:
+            dc, dx = _schur_step(Hcc, Hxx, Hcx, gc, gx, p, mu, free)
+            Rn, tn = lie.update(R, t, dc)
+            Xn = X + dx
+            new = float(loss(Rn, tn, Xn, p))
+            if new <= cost or mu > 1e6:
+                break
+            mu *= 8
+        if new > cost:
+            break
+        rel = (cost - new) / max(cost, 1e-300)
+        R, t, X, cost = Rn, tn, Xn, new
+        mu = max(mu / 4, 1e-8)
+        if log:
+            log("stage 2", it, cost)
+        if rel < tol:
+            break
+    return R, t, X, cost
+
+
+def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=None):
+    """The paper's way: Adam (amsgrad) on pose updates, points and explicit offsets ``O [M,3]``."""
+    xi = torch.zeros(p.n_frames, 6, dtype=R.dtype, device=R.device, requires_grad=True)
+    Xp = X.clone().requires_grad_(True)
+    O = torch.zeros(p.pt.shape[0], 3, dtype=R.dtype, device=R.device, requires_grad=p.offsets)
+    params = [xi, Xp] + ([O] if p.offsets else [])
+    opt = torch.optim.Adam(params, lr=lr, amsgrad=True)
+    gauge = torch.ones(p.n_frames, 1, dtype=R.dtype, device=R.device)
+    gauge[0] = 0
+    for it in range(iters):
+        Rn, tn = lie.update(R, t, xi * gauge)
+        obj = explicit_objective(Rn, tn, Xp, O, p)
+        opt.zero_grad()
+        obj.backward()
+        opt.step()
+        if log and it % 100 == 0:
+            log("stage 2 adam", it, float(obj))
+    with torch.no_grad():
+        Rn, tn = lie.update(R, t, xi * gauge)
+        return Rn, tn, Xp.detach(), O.detach(), float(explicit_objective(Rn, tn, Xp, O, p))
+
+
+def init_points(R, t, p: BAProblem) -> torch.Tensor:
+    """Mean of each point's back-projections with the prior depth over its visible frames [N,3]."""
+    Yc = lie.unproject(p.uv, p.depth, p.K)
+    Xw = (R[p.fr].transpose(1, 2) @ (Yc - t[p.fr])[..., None])[..., 0]
+    s = torch.zeros(p.n_points, 3, dtype=Xw.dtype, device=Xw.device).index_add_(0, p.pt, Xw)
+    n = torch.zeros(p.n_points, dtype=Xw.dtype, device=Xw.device).index_add_(0, p.pt, torch.ones_like(p.depth))
+    return s / n.clamp_min(1)[:, None]
+
+
+def track_offset_stat(norms: torch.Tensor, p: BAProblem, stat: str = "max") -> np.ndarray:
+    """Per-point statistic [N] of ||O(i,t)|| over the visible frames: max (paper) or a percentile pNN."""
+    norms = norms.detach()
+    if stat == "max":
+        out = torch.zeros(p.n_points, dtype=norms.dtype, device=norms.device)
+        out.scatter_reduce_(0, p.pt, norms, reduce="amax", include_self=True)
+        return out.cpu().numpy()
+    if not (stat.startswith("p") and stat[1:].isdigit() and 0 <= int(stat[1:]) <= 100):
+        raise ValueError(f"unknown offset statistic {stat!r} (max, or a percentile such as p50)")
+    frac = int(stat[1:]) / 100
+    pt = p.pt.cpu().numpy()
+    v = norms.cpu().numpy()
+    order = np.lexsort((v, pt))
+    pt, v = pt[order], v[order]
+    starts = np.searchsorted(pt, np.arange(p.n_points))
+    counts = np.bincount(pt, minlength=p.n_points)
+    idx = starts + np.floor(frac * np.maximum(counts - 1, 0)).astype(np.int64)
+    out = np.zeros(p.n_points)
+    has = counts > 0
+    out[has] = v[idx[has]]
+    return out
+
+
+def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
+    """Best static point ``[N,3]`` of every track with the poses held fixed (Gauss-Newton on the same
+    objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment."""
+    X = init_points(R, t, p)
+    eye = torch.eye(3, dtype=X.dtype, device=X.device)
+    for _ in range(iters):
+        _, Hxx, _, _, gx = _linearize(R, t, X, p)
+        scale = torch.diagonal(Hxx, dim1=1, dim2=2).amax(-1).clamp_min(1e-30)[:, None, None]
+        X = X - torch.linalg.solve(Hxx + 1e-6 * scale * eye, gx[..., None])[..., 0]
+    return X

@@ -1,0 +1,240 @@
+"""``--method trackingworld``: dense 2D tracks -> stages 1-3 -> world-centric 3D tracks, poses, video depth."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import cv2
+import numpy as np
+import torch
+
+from trackingworld.config import OptimConfig, RunConfig
+from trackingworld.errors import InputError
+from trackingworld.geometry import invert_pose, transform, unproject
+from trackingworld.io.result import Result
+from trackingworld.optim import lie, stage2, stage3
+from trackingworld.optim.densify import cell_representatives, propagate_ratio, ratio_maps, thin_references
+from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
+from trackingworld.optim.stage1 import initial_poses
+from trackingworld.pipeline.baseline import sample_colors
+from trackingworld.pipeline.inputs import Inputs, resize_stack
+from trackingworld.pipeline.lift import sample_maps
+from trackingworld.pipeline.tracks import track_video
+from trackingworld.progress import stage_logger
+from trackingworld.tracking2d.base import TrackResult, hold_invisible
+
+
+class Timer:
+    def __init__(self, timings: dict, verbose: bool):
+        self.timings, self.verbose = timings, verbose
+
+    def __call__(self, name: str):
+        timer = self
+
+        class _Ctx:
+            def __enter__(self):
+                self.t0 = time.perf_counter()
+                if timer.verbose:
+                    print(f"[{name}] ...", file=sys.stderr, flush=True)
+
+            def __exit__(self, *exc):
+                dt = time.perf_counter() - self.t0
+                timer.timings[name] = timer.timings.get(name, 0.0) + dt
+                if timer.verbose:
+                    print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
+
+        return _Ctx()
+
+
+def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
+    """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame."""
+    return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
+
+
+def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarray, cfg: OptimConfig,
+             timings: dict, device: str = "cpu", seed: int = 0) -> dict:
+    """Stages 1-3 on dense tracks ``tr`` (processing resolution), the depth prior ``[T,h,w]`` metres, the
+    coarse masks ``[T,h,w]`` and K ``[3,3]``. Returns a dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world
+    metres, ``is_dynamic [N]``, ``labels [N]`` (mask labels), ``depth [T,h,w]`` consistent video depth and
+    ``info`` (losses, counts)."""
+    tm = Timer(timings, cfg.verbose)
+    log = stage_logger(cfg.verbose, every=5)
+    rng = np.random.default_rng(seed)
+    dtype = getattr(torch, cfg.dtype)
+    uv, vis = tr.tracks.astype(np.float64), tr.visible
+    N, T = vis.shape
+    qf = tr.queries[:, 0].astype(np.int64)
+    info: dict = {"tracks": int(N)}
+    with tm("labels"):
+        D = sample_maps(prior, tr.tracks).astype(np.float64)
+        labels = label_tracks(tr.tracks, vis, qf, masks, cfg.mask_margin_px)
+        static_idx = np.flatnonzero(labels == STATIC)
+        reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
+        s2 = reps[vis[reps].sum(1) >= 2]
+        info.update(static=int(len(static_idx)), dynamic_masks=int((labels == DYNAMIC).sum()),
+                    ambiguous=int((labels == AMBIGUOUS).sum()), optimised_static=int(len(s2)))
+
+    with tm("stage1"):
+        if cfg.no_pose_init or len(s2) == 0:
+            poses = np.tile(np.eye(4), (T, 1, 1))
+        else:
+            poses, info["stage1"] = initial_poses(uv[s2], D[s2], vis[s2], K, cfg, rng, device, log)
+
+    with tm("stage2"):
+        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
+        R, t = lie.c2w_to_w2c(poses, dtype, device)
+        X0 = stage2.init_points(R, t, p)
+        loss0 = float(stage2.loss(R, t, X0, p))
+        if cfg.solver == "adam":
+            R, t, X, _, _ = stage2.solve_adam(R, t, X0, p, cfg.adam_iters[1], cfg.adam_lr, log)
+        else:
+            R, t, X, _ = stage2.solve_lm(R, t, X0, p, cfg.lm_iters, cfg.lm_tol, log)
+        info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p))}
+        poses = lie.w2c_to_c2w(R, t)
+        moving_s2 = np.zeros(len(s2), bool)
+        if p.offsets:
+            stat = stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat)
+            moving_s2 = stat >= cfg.epsilon
+        X = X.detach().cpu().numpy()
+        info["stage2"]["moving"] = int(moving_s2.sum())
+
+    xyz = np.zeros((N, T, 3), np.float64)
+    dynamic = labels == DYNAMIC
+    dynamic[s2[moving_s2]] = True
+    with tm("classify"):
+        # tracks the masks call dynamic or ambiguous get the same as-static-as-possible test with the poses
+        # fixed: the coarse masks are dilated, and a track that fits one static point is static
+        cand = np.flatnonzero((labels != STATIC) & (vis.sum(1) >= 2))
+        if p.offsets and len(cand):
+            pc = stage2.BAProblem.from_tracks(uv[cand], D[cand], vis[cand], K, cfg, dtype, device)
+            Xc = stage2.fit_points(R, t, pc)
+            still = stage2.track_offset_stat(stage2.offset_norms(R, t, Xc, pc), pc, cfg.offset_stat) < cfg.epsilon
+            fixed = cand[still]
+            dynamic[fixed] = False
+            dynamic[cand[~still]] = True
+            xyz[fixed] = Xc.cpu().numpy()[still][:, None]
+            info["classify"] = {"tested": int(len(cand)), "static": int(still.sum())}
+    ok_s2 = s2[~moving_s2]
+    xyz[ok_s2] = X[~moving_s2][:, None]
+    with tm("rebuild_static"):
+        # every other static / ambiguous track: its own ray at the query frame, depth from the propagated
+        # scale of the optimised static points visible there (the appendix's speed-up, rebuilt by IDW)
+        rest = np.setdiff1d(np.flatnonzero(labels == STATIC), s2)
+        rest = np.union1d(rest, np.flatnonzero((labels == AMBIGUOUS) & (vis.sum(1) < 2)))
+        ref_z = camera_depths(X[~moving_s2][:, None].repeat(T, 1), poses)
+        ref_ratio = ref_z / np.maximum(D[ok_s2], 1e-6)
+        moving_flag = moving_s2.astype(np.float64)
+        for q in np.unique(qf[rest]):
+            who = rest[qf[rest] == q]
+            v = np.flatnonzero(vis[s2, q])
+            refs = s2[v]
+            r_ok = ~moving_s2[v]
+            if r_ok.sum() == 0:
+                ratio = np.full(len(who), np.nanmedian(ref_ratio) if ref_ratio.size else 1.0)
+            else:
+                vv = v[r_ok]
+                ratio = propagate_ratio(uv[s2[vv], q], D[s2[vv], q], ref_ratio[np.searchsorted(ok_s2, s2[vv]), q],
+                                        uv[who, q], D[who, q], K, cfg.idw_k)
+            pts = unproject(uv[who, q], ratio * D[who, q], K)
+            xyz[who] = transform(poses[q], pts)[:, None]
+            if len(refs):
+                mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who, q], D[who, q], K, cfg.idw_k)
+                dynamic[who[mv >= 0.5]] = True
+        info["dynamic"] = int(dynamic.sum())
+
+    with tm("stage3"):
+        dyn = np.flatnonzero(dynamic)
+        static_all = np.flatnonzero(~dynamic)
+        z_static = camera_depths(xyz[static_all], poses)
+        sratio = np.where(vis[static_all], z_static / np.maximum(D[static_all], 1e-6), np.nan)
+        if cfg.dc_target == "aligned":
+            target = D[dyn].copy()
+            for tt in range(T):
+                v = np.flatnonzero(vis[static_all, tt])
+                w = np.flatnonzero(vis[dyn, tt])
+                if len(v) and len(w):
+                    sub = v[thin_references(uv[static_all[v], tt], 4.0)]
+                    target[w, tt] *= propagate_ratio(uv[static_all[sub], tt], D[static_all[sub], tt],
+                                                     sratio[sub, tt], uv[dyn[w], tt], D[dyn[w], tt], K, 4)
+        else:
+            target = D[dyn]
+        if len(dyn):
+            ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
+            cd = dyn[ctrl]
+            xyz[cd] = _dynamic_tracks(uv[cd], vis[cd], target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,
+                                      log, info)
+            others = np.setdiff1d(np.arange(len(dyn)), ctrl)
+            if len(others):
+                xyz[dyn[others]] = _follow_controls(uv, vis, D, target, dyn, ctrl, others, xyz, poses, K, cfg.idw_k)
+            info["stage3_controls"] = int(len(ctrl))
+
+    with tm("video_depth"):
+        z_all = camera_depths(xyz, poses)
+        ratio = np.where(vis, z_all / np.maximum(D, 1e-6), np.nan)
+        depth = ratio_maps(uv, D, ratio, vis, prior.astype(np.float64), K) * prior
+    return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth,
+            "info": info}
+
+
+def _follow_controls(uv, vis, D, target, dyn, ctrl, others, xyz, poses, K, k) -> np.ndarray:
+    """Dynamic tracks that were not optimised: in every visible frame, their own pixel ray at their target
+    depth times the IDW-propagated correction ``z_opt / target`` of the control tracks visible there."""
+    T = vis.shape[1]
+    cd, od = dyn[ctrl], dyn[others]
+    zc = camera_depths(xyz[cd], poses)
+    corr = zc / np.maximum(target[ctrl], 1e-6)
+    out = np.zeros((len(od), T, 3))
+    for t in range(T):
+        w = np.flatnonzero(vis[od, t])
+        v = np.flatnonzero(vis[cd, t])
+        if not len(w):
+            continue
+        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[od[w], t], D[od[w], t], K, k)
+        out[w, t] = transform(poses[t], unproject(uv[od[w], t], r * target[others[w], t], K))
+    return hold_invisible(out, vis[od])
+
+
+def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
+    """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` (invisible frames held from the nearest
+    visible one)."""
+    init = transform(poses[None], unproject(uv, target, K))
+    lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
+    if cfg.no_dynamic_opt:  # "w/o D.O.T": the raw prior lifted with the final poses
+        out = transform(poses[None], unproject(uv, raw, K))
+        return hold_invisible(out, vis)
+    nb = stage3.neighbours(init, vis, qf, cfg.arap_k)
+    p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device)
+    d0 = p.target.clone()
+    e0 = float(stage3.ray_energy(d0, p))
+    if cfg.solver == "adam":
+        R, t = lie.c2w_to_w2c(poses, dtype, device)
+        Kt = torch.as_tensor(K, dtype=dtype, device=device)
+        X = stage3.solve_adam(p, d0, (R, t), Kt, cfg.adam_iters[2], cfg.adam_lr, log)
+        e1 = float(stage3.objective(X, p, (R, t), Kt))
+    else:
+        d = stage3.solve_cg(p, d0, log=log) if str(device).startswith("cuda") else stage3.solve_amg(p, d0)
+        X = p.centre + p.ray * d[:, None]
+        e1 = float(stage3.ray_energy(d, p))
+    info["stage3"] = {"loss_init": e0, "loss": e1, "unknowns": int(p.target.shape[0])}
+    out = np.zeros(uv.shape[:2] + (3,))
+    kk, tt = np.nonzero(vis)
+    out[kk, tt] = X.detach().cpu().numpy()
+    return hold_invisible(out, vis)
+
+
+def run_trackingworld(inp: Inputs, cfg: RunConfig, timings: dict | None = None) -> Result:
+    """The full method on loaded inputs; see :func:`optimise`."""
+    timings = {} if timings is None else timings
+    if inp.depth is None:
+        raise InputError(f"{cfg.inputs.input}: --method trackingworld needs a depth prior (--depth FILE)")
+    tr = track_video(inp.frames, cfg.track2d, timings, cfg.device)
+    out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed)
+    W, H = inp.size_in
+    qt = tr.queries[:, 0].astype(np.int32)
+    depth = resize_stack(out["depth"].astype(np.float32), W, H, cv2.INTER_LINEAR)
+    return Result(
+        tracks_2d=inp.to_input_pixels(tr.tracks), visible=tr.visible, tracks_3d=out["xyz"], query_frame=qt,
+        is_dynamic=out["is_dynamic"], colors=sample_colors(inp.frames, tr.queries), poses_c2w=out["poses_c2w"],
+        intrinsics=inp.K_in, depth=depth,
+    )

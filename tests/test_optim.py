@@ -1,0 +1,168 @@
+"""The world-centric optimiser: geometry helpers, each stage on synthetic problems with known answers,
+and the full method against the camera-centric baseline on a rendered scene."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from trackingworld.cli.main import main
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt, project, transform
+from trackingworld.optim import lie, stage2, stage3
+from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
+from trackingworld.optim.stage1 import chain_clips, clip_frames, initial_poses
+
+K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
+
+
+def _scene(T=16, N=1500, n_moving=150, seed=0, depth_noise=0.02):
+    """Random points seen by a moving camera; the first n_moving points drift (an unmasked mover)."""
+    rng = np.random.default_rng(seed)
+    X = np.stack([rng.uniform(-3, 3, N), rng.uniform(-2, 2, N), rng.uniform(3, 8, N)], 1)
+    Xt = np.repeat(X[None], T, 0)
+    Xt[:, :n_moving] += np.arange(T)[:, None, None] * np.array([0.05, 0.0, 0.02])
+    c2w = np.stack([pose_from_rt(Rotation.from_rotvec([0, 0.012 * t, 0.004 * t]).as_matrix(),
+                                 np.array([0.05 * t, 0.0, 0.02 * t])) for t in range(T)])
+    uv, z = project(transform(invert_pose(c2w)[:, None], Xt), K)
+    uv, z = uv.transpose(1, 0, 2), z.T
+    vis = (uv[..., 0] > 0) & (uv[..., 0] < 320) & (uv[..., 1] > 0) & (uv[..., 1] < 240)
+    uv = uv + rng.normal(0, 0.3, uv.shape)
+    zn = z * (1 + depth_noise * rng.standard_normal(z.shape))
+    return uv, zn, vis, c2w, np.arange(N) < n_moving
+
+
+def test_so3_exp_and_projection_jacobian():
+    w = torch.tensor([[0.3, -0.2, 0.5], [1e-9, 0, 0]], dtype=torch.float64)
+    R = lie.so3_exp(w).numpy()
+    assert np.allclose(R, Rotation.from_rotvec(w.numpy()).as_matrix(), atol=1e-12)
+    Y = torch.tensor([[0.4, -0.3, 2.5]], dtype=torch.float64)
+    Kt = torch.as_tensor(K)
+    J = torch.autograd.functional.jacobian(lambda y: lie.project(y, Kt), Y)[0, :, 0]
+    assert torch.allclose(lie.project_jacobian(Y, Kt)[0], J)
+    R0, t0 = lie.c2w_to_w2c(np.stack([np.eye(4), pose_from_rt(R[0], np.array([1.0, 2, 3]))]))
+    assert np.allclose(lie.w2c_to_c2w(R0, t0)[1, :3, 3], [1, 2, 3])
+
+
+def test_clips_share_frames_and_chain_by_composition():
+    assert clip_frames(12, 5) == [[0, 1, 2, 3, 4], [4, 5, 6, 7, 8], [8, 9, 10, 11]]
+    # two clips each turning 40 degrees: composed, frame 8 has turned 80 (adding rotation vectors of
+    # non-parallel rotations would not give a rotation of this form)
+    step = Rotation.from_rotvec([0, np.deg2rad(10), 0]).as_matrix()
+    rel = np.stack([np.linalg.matrix_power(step, j) for j in range(5)])
+    R = torch.as_tensor(np.stack([rel, rel]).transpose(0, 1, 3, 2).copy())  # w2c = c2w^T
+    t = torch.zeros(2, 5, 3, dtype=torch.float64)
+    out = chain_clips([[0, 1, 2, 3, 4], [4, 5, 6, 7, 8]], R, t, 9)
+    ang = np.rad2deg(Rotation.from_matrix(out[8, :3, :3]).magnitude())
+    assert ang == pytest.approx(80.0, abs=1e-6)
+
+
+def test_stage1_recovers_poses_from_static_tracks():
+    uv, z, vis, c2w, moving = _scene(n_moving=0)
+    poses, info = initial_poses(uv, z, vis, K, OptimConfig(verbose=False), np.random.default_rng(0))
+    assert np.abs(poses[:, :3, 3] - c2w[:, :3, 3]).max() < 0.03
+    assert info["inlier_fraction"] > 0.9
+
+
+def test_stage2_flags_the_unmasked_mover_and_refines_poses():
+    uv, z, vis, c2w, moving = _scene()
+    cfg = OptimConfig(verbose=False)
+    poses, _ = initial_poses(uv, z, vis, K, cfg, np.random.default_rng(0))
+    p = stage2.BAProblem.from_tracks(uv, z, vis, K, cfg, torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(poses)
+    X0 = stage2.init_points(R, t, p)
+    R2, t2, X2, cost = stage2.solve_lm(R, t, X0, p)
+    assert cost < float(stage2.loss(R, t, X0, p))
+    err = np.abs(lie.w2c_to_c2w(R2, t2)[:, :3, 3] - c2w[:, :3, 3]).max()
+    assert err < 0.05
+    stat = stage2.track_offset_stat(stage2.offset_norms(R2, t2, X2, p), p, "max")
+    flagged = stat >= cfg.epsilon
+    assert flagged[moving].mean() > 0.8 and (~flagged[~moving]).mean() > 0.95
+    # the closed-form offsets are what the explicit objective scores: no worse than no offsets at all
+    O = stage2.closed_form_offsets(R2, t2, X2, p)
+    assert float(stage2.explicit_objective(R2, t2, X2, O, p)) <= float(
+        stage2.explicit_objective(R2, t2, X2, torch.zeros_like(O), p)) + 1e-12
+
+
+def test_stage2_lm_beats_a_short_adam_run_on_the_same_loss():
+    uv, z, vis, c2w, moving = _scene(T=10, N=600, n_moving=60)
+    cfg = OptimConfig(verbose=False)
+    poses, _ = initial_poses(uv, z, vis, K, cfg, np.random.default_rng(0))
+    p = stage2.BAProblem.from_tracks(uv, z, vis, K, cfg, torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(poses)
+    X0 = stage2.init_points(R, t, p)
+    _, _, _, lm_cost = stage2.solve_lm(R, t, X0, p)
+    Ra, ta, Xa, _, _ = stage2.solve_adam(R, t, X0, p, iters=200)
+    assert lm_cost <= float(stage2.loss(Ra, ta, Xa, p))
+
+
+def test_stage3_solvers_agree_and_lower_the_objective():
+    rng = np.random.default_rng(1)
+    T, N = 6, 40
+    c2w = np.stack([pose_from_rt(np.eye(3), np.array([0.1 * t, 0, 0])) for t in range(T)])
+    X = np.stack([rng.uniform(-0.3, 0.3, N), rng.uniform(-0.3, 0.3, N), rng.uniform(3.8, 4.2, N)], 1)
+    Xt = X[None] + np.arange(T)[:, None, None] * np.array([0.03, 0, 0.05])  # one rigid mover
+    uv, z = project(transform(invert_pose(c2w)[:, None], Xt), K)
+    uv, z = uv.transpose(1, 0, 2), z.T
+    vis = np.ones((N, T), bool)
+    vis[:5, 3] = False
+    noisy = z * (1 + 0.05 * rng.standard_normal(z.shape))
+    init = transform(c2w[None], np.concatenate([(uv - K[:2, 2]) / 300.0 * noisy[..., None], noisy[..., None]], -1))
+    nb = stage3.neighbours(init, vis, np.zeros(N, np.int64), 4)
+    assert (nb >= 0).all() and (nb != np.arange(N)[:, None]).all()
+    p = stage3.build_problem(uv, vis, noisy, c2w, K, nb, (1.0, 1.0, 100.0, 10.0), torch.float64, "cpu")
+    d0 = p.target.clone()
+    d_amg = stage3.solve_amg(p, d0)
+    d_cg = stage3.solve_cg(p, d0, iters=2000, tol=1e-12)
+    assert torch.allclose(d_amg, d_cg, atol=1e-5)
+    assert float(stage3.ray_energy(d_amg, p)) < float(stage3.ray_energy(d0, p))
+    # ARAP and smoothness pull the noisy depths towards the rigid truth
+    truth = torch.as_tensor(z[vis])
+    assert (d_amg - truth).abs().mean() < (d0 - truth).abs().mean()
+
+
+def test_label_tracks_from_masks():
+    masks = np.zeros((3, 40, 40), bool)
+    masks[:, 10:30, 10:30] = True
+    tracks = np.array([[[2.0, 2.0]] * 3, [[20.0, 20.0]] * 3, [[10.0, 20.0]] * 3])
+    vis = np.ones((3, 3), bool)
+    lab = label_tracks(tracks, vis, np.zeros(3, np.int64), masks, margin_px=2)
+    assert list(lab) == [STATIC, DYNAMIC, AMBIGUOUS]
+
+
+def test_full_method_beats_the_baseline(tiny_scene, tmp_path):
+    inp = tiny_scene / "input"
+    metrics = {}
+    for method in ("trackingworld", "baseline"):
+        out = tmp_path / method
+        assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet",
+                     "--method", method]) == 0
+        assert main(["eval", str(out), "--gt", str(tiny_scene)]) == 0
+        metrics[method] = json.loads((out / "metrics.json").read_text())
+    tw, base = metrics["trackingworld"], metrics["baseline"]
+    assert tw["camera"]["ate"] < 0.5 * base["camera"]["ate"]
+    assert tw["world_3d"]["all"]["acc_avg"] > base["world_3d"]["all"]["acc_avg"]
+    # (track depth is not asserted here: on this 10-frame 128x96 scene stage 3 still loses to the prior,
+    # see the README's known issues; on the default scene it wins)
+    timings = json.loads((tmp_path / "trackingworld" / "timings.json").read_text())
+    assert {"stage1", "stage2", "stage3", "video_depth"} <= set(timings)
+
+
+def test_ablation_switches_run(tiny_scene, tmp_path):
+    inp = tiny_scene / "input"
+    for flag in ("--no-pose-init", "--no-offsets", "--no-dynamic-opt", "--solver"):
+        extra = [flag, "adam"] if flag == "--solver" else [flag]
+        out = tmp_path / flag.strip("-")
+        assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", *extra]) == 0
+        cfg = json.loads((out / "config.json").read_text())["optim"]
+        assert cfg["solver"] == "adam" if flag == "--solver" else cfg[flag.strip("-").replace("-", "_")]
+
+
+def test_trackingworld_needs_a_depth_prior(tiny_scene, tmp_path, capsys):
+    assert main(["run", str(tiny_scene / "input" / "frames"), "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert "--depth" in capsys.readouterr().err
+    assert not (tmp_path / "x" / "result.npz").exists()
