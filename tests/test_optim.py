@@ -34,6 +34,15 @@ def _scene(T=16, N=1500, n_moving=150, seed=0, depth_noise=0.02):
     return uv, zn, vis, c2w, np.arange(N) < n_moving
 
 
+def _stage2_start(uv, z, vis):
+    """Stage-1 poses, the stage-2 problem and its initial points for a synthetic scene."""
+    cfg = OptimConfig(verbose=False)
+    poses, _ = initial_poses(uv, z, vis, K, cfg, np.random.default_rng(0))
+    p = stage2.BAProblem.from_tracks(uv, z, vis, K, cfg, torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(poses)
+    return cfg, p, R, t, stage2.init_points(R, t, p)
+
+
 def test_so3_exp_and_projection_jacobian():
     w = torch.tensor([[0.3, -0.2, 0.5], [1e-9, 0, 0]], dtype=torch.float64)
     R = lie.so3_exp(w).numpy()
@@ -68,11 +77,7 @@ def test_stage1_recovers_poses_from_static_tracks():
 
 def test_stage2_flags_the_unmasked_mover_and_refines_poses():
     uv, z, vis, c2w, moving = _scene()
-    cfg = OptimConfig(verbose=False)
-    poses, _ = initial_poses(uv, z, vis, K, cfg, np.random.default_rng(0))
-    p = stage2.BAProblem.from_tracks(uv, z, vis, K, cfg, torch.float64, "cpu")
-    R, t = lie.c2w_to_w2c(poses)
-    X0 = stage2.init_points(R, t, p)
+    cfg, p, R, t, X0 = _stage2_start(uv, z, vis)
     R2, t2, X2, cost = stage2.solve_lm(R, t, X0, p)
     assert cost < float(stage2.loss(R, t, X0, p))
     err = np.abs(lie.w2c_to_c2w(R2, t2)[:, :3, 3] - c2w[:, :3, 3]).max()
@@ -88,11 +93,7 @@ def test_stage2_flags_the_unmasked_mover_and_refines_poses():
 
 def test_stage2_lm_beats_a_short_adam_run_on_the_same_loss():
     uv, z, vis, c2w, moving = _scene(T=10, N=600, n_moving=60)
-    cfg = OptimConfig(verbose=False)
-    poses, _ = initial_poses(uv, z, vis, K, cfg, np.random.default_rng(0))
-    p = stage2.BAProblem.from_tracks(uv, z, vis, K, cfg, torch.float64, "cpu")
-    R, t = lie.c2w_to_w2c(poses)
-    X0 = stage2.init_points(R, t, p)
+    cfg, p, R, t, X0 = _stage2_start(uv, z, vis)
     _, _, _, lm_cost = stage2.solve_lm(R, t, X0, p)
     Ra, ta, Xa, _, _ = stage2.solve_adam(R, t, X0, p, iters=200)
     assert lm_cost <= float(stage2.loss(Ra, ta, Xa, p))

@@ -33,6 +33,7 @@ import torch
 
 from trackingworld.config import OptimConfig
 from trackingworld.optim import lie
+from trackingworld.optim.linalg import pcg
 
 
 @dataclass
@@ -185,27 +186,6 @@ def _damp(H: torch.Tensor, mu: float) -> torch.Tensor:
     return H + torch.diag_embed(mu * d + 1e-12 * (1 + d.abs().amax(-1, keepdim=True)))
 
 
-def _pcg(matvec, rhs, precond, iters: int, tol: float = 1e-10):
-    x = torch.zeros_like(rhs)
-    r = rhs.clone()
-    z = precond(r)
-    d = z.clone()
-    rz = (r * z).sum()
-    r0 = float(rhs.norm()) + 1e-30
-    for _ in range(iters):
-        Ad = matvec(d)
-        alpha = rz / (d * Ad).sum().clamp_min(1e-300)
-        x = x + alpha * d
-        r = r - alpha * Ad
-        if float(r.norm()) < tol * r0:
-            break
-        z = precond(r)
-        rz_new = (r * z).sum()
-        d = z + (rz_new / rz) * d
-        rz = rz_new
-    return x
-
-
 def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor):
     """One damped Gauss-Newton step: the points eliminated (Schur complement), poses by PCG."""
     Hxx_inv = torch.linalg.inv(_damp(Hxx, mu))
@@ -229,7 +209,7 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     B_inv = torch.linalg.inv(blocks)
     y = (Hxx_inv @ gx[..., None])[..., 0]
     rhs = -(gc - torch.zeros_like(gc).index_add_(0, p.fr, (Hcx @ y[p.pt][..., None])[..., 0])) * fmask
-    dc = _pcg(matvec, rhs, lambda r: (B_inv @ r[..., None])[..., 0], iters=max(60, 6 * T))
+    dc = pcg(matvec, rhs, lambda r: (B_inv @ r[..., None])[..., 0], iters=max(60, 6 * T))
     dc = dc * fmask
     back = torch.zeros_like(gx).index_add_(0, p.pt, (Hcx.transpose(1, 2) @ dc[p.fr][..., None])[..., 0])
     dx = -(Hxx_inv @ (gx + back)[..., None])[..., 0]

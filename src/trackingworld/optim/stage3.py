@@ -26,6 +26,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from trackingworld.optim import lie
+from trackingworld.optim.linalg import pcg
 
 
 @dataclass
@@ -153,26 +154,12 @@ def solve_cg(p: DynProblem, d0: torch.Tensor, iters: int = 500, tol: float = 1e-
 
     b = -grad(torch.zeros_like(d0), True)  # A 0 - b = grad at 0
     Minv = 1.0 / _diag(p).clamp_min(1e-30)
-    x = d0.clone()
-    r = b - matvec(x)
-    z = Minv * r
-    s = z.clone()
-    rz = (r * z).sum()
-    r0 = float(b.norm()) + 1e-30
-    for it in range(iters):
-        As = matvec(s)
-        alpha = rz / (s * As).sum().clamp_min(1e-300)
-        x = x + alpha * s
-        r = r - alpha * As
+
+    def progress(it, x):
         if log and it % 50 == 0:
             log("stage 3", it, float(ray_energy(x, p)))
-        if float(r.norm()) < tol * r0:
-            break
-        z = Minv * r
-        rz_new = (r * z).sum()
-        s = z + (rz_new / rz) * s
-        rz = rz_new
-    return x.detach()
+
+    return pcg(matvec, b, lambda r: Minv * r, x0=d0, iters=iters, tol=tol, callback=progress).detach()
 
 
 def normal_equations(p: DynProblem):

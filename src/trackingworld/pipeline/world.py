@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
+from functools import partial
 
 import cv2
 import numpy as np
@@ -25,26 +27,17 @@ from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
 
-class Timer:
-    def __init__(self, timings: dict, verbose: bool):
-        self.timings, self.verbose = timings, verbose
-
-    def __call__(self, name: str):
-        timer = self
-
-        class _Ctx:
-            def __enter__(self):
-                self.t0 = time.perf_counter()
-                if timer.verbose:
-                    print(f"[{name}] ...", file=sys.stderr, flush=True)
-
-            def __exit__(self, *exc):
-                dt = time.perf_counter() - self.t0
-                timer.timings[name] = timer.timings.get(name, 0.0) + dt
-                if timer.verbose:
-                    print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
-
-        return _Ctx()
+@contextmanager
+def timed(timings: dict, name: str, verbose: bool):
+    """Add the wall time of the block to ``timings[name]`` (seconds), with a start / end line on stderr."""
+    t0 = time.perf_counter()
+    if verbose:
+        print(f"[{name}] ...", file=sys.stderr, flush=True)
+    yield
+    dt = time.perf_counter() - t0
+    timings[name] = timings.get(name, 0.0) + dt
+    if verbose:
+        print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
@@ -58,7 +51,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     coarse masks ``[T,h,w]`` and K ``[3,3]``. Returns a dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world
     metres, ``is_dynamic [N]``, ``labels [N]`` (mask labels), ``depth [T,h,w]`` consistent video depth and
     ``info`` (losses, counts)."""
-    tm = Timer(timings, cfg.verbose)
+    tm = partial(timed, timings, verbose=cfg.verbose)
     log = stage_logger(cfg.verbose, every=5)
     rng = np.random.default_rng(seed)
     dtype = getattr(torch, cfg.dtype)
@@ -122,8 +115,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         # scale of the optimised static points visible there (the appendix's speed-up, rebuilt by IDW)
         rest = np.setdiff1d(np.flatnonzero(labels == STATIC), s2)
         rest = np.union1d(rest, np.flatnonzero((labels == AMBIGUOUS) & (vis.sum(1) < 2)))
-        ref_z = camera_depths(X[~moving_s2][:, None].repeat(T, 1), poses)
-        ref_ratio = ref_z / np.maximum(D[ok_s2], 1e-6)
+        ref_ratio = camera_depths(xyz[ok_s2], poses) / np.maximum(D[ok_s2], 1e-6)
         moving_flag = moving_s2.astype(np.float64)
         for q in np.unique(qf[rest]):
             who = rest[qf[rest] == q]
@@ -145,10 +137,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
 
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
-        static_all = np.flatnonzero(~dynamic)
-        z_static = camera_depths(xyz[static_all], poses)
-        sratio = np.where(vis[static_all], z_static / np.maximum(D[static_all], 1e-6), np.nan)
         if cfg.dc_target == "aligned":
+            static_all = np.flatnonzero(~dynamic)
+            z_static = camera_depths(xyz[static_all], poses)
+            sratio = np.where(vis[static_all], z_static / np.maximum(D[static_all], 1e-6), np.nan)
             target = D[dyn].copy()
             for tt in range(T):
                 v = np.flatnonzero(vis[static_all, tt])
@@ -198,12 +190,10 @@ def _follow_controls(uv, vis, D, target, dyn, ctrl, others, xyz, poses, K, k) ->
 def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
     """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` (invisible frames held from the nearest
     visible one)."""
-    init = transform(poses[None], unproject(uv, target, K))
-    lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
     if cfg.no_dynamic_opt:  # "w/o D.O.T": the raw prior lifted with the final poses
-        out = transform(poses[None], unproject(uv, raw, K))
-        return hold_invisible(out, vis)
-    nb = stage3.neighbours(init, vis, qf, cfg.arap_k)
+        return hold_invisible(transform(poses[None], unproject(uv, raw, K)), vis)
+    lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
+    nb = stage3.neighbours(transform(poses[None], unproject(uv, target, K)), vis, qf, cfg.arap_k)
     p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device)
     d0 = p.target.clone()
     e0 = float(stage3.ray_energy(d0, p))
