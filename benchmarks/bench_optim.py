@@ -81,7 +81,7 @@ def main(argv=None) -> int:
         results[name] = {"metrics": m, "timings": tm, "wall_s": wall,
                          "optim_s": sum(tm.get(k, 0.0) for k in OPT_STAGES)}
         print(f"[bench] {name}: {wall:.1f} s", file=sys.stderr)
-    write(results, a.preset, frames.shape)
+    write(results, a.preset + (" --quick" if a.quick else ""), frames.shape)
     return 0
 
 
@@ -95,7 +95,8 @@ def write(results: dict, preset: str, shape) -> None:
     head = ("| configuration | ATE [% path] | RTE [m] | RRE [deg] | track depth AbsRel (prior) | "
             "video depth AbsRel (prior) | world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | "
             "optimisation [s] |")
-    lines = [f"# World-centric optimiser on the `{preset}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})", "",
+    name = preset.split()[0]
+    lines = [f"# World-centric optimiser on the `{name}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})", "",
              "Command: `.venv/bin/python benchmarks/bench_optim.py --preset " + preset + "`", "", head,
              "|" + "---|" * (head.count("|") - 1)]
     for name, r in results.items():
@@ -107,8 +108,8 @@ def write(results: dict, preset: str, shape) -> None:
             f"{_f(vd['abs_rel_depth'], 4)} ({_f(m['video_depth_prior']['abs_rel_depth'], 4)}) | "
             f"{_f(w['all']['acc_avg'], 1)} / {_f(w['dynamic']['acc_avg'], 1)} | "
             f"{_f(lab['static_kept_static'], 1)} | {_f(lab['bg_mover_recall'], 1)} | {r['optim_s']:.1f} |")
-    (out / f"optim_{preset}.md").write_text("\n".join(lines) + "\n")
-    (out / f"optim_{preset}.json").write_text(json.dumps(
+    (out / f"optim_{name}.md").write_text("\n".join(lines) + "\n")
+    (out / f"optim_{name}.json").write_text(json.dumps(
         {k: {"metrics": v["metrics"], "timings": v["timings"], "wall_s": v["wall_s"]} for k, v in results.items()},
         indent=1, default=float))
     print("\n".join(lines))
