@@ -8,13 +8,19 @@ from dataclasses import asdict, dataclass, field
 @dataclass
 class InputConfig:
     input: str = ""
-    depth: str | None = None  # .npy/.npz metres or a folder of 16-bit PNG millimetres
-    masks: str | None = None  # folder of PNGs (non-zero = dynamic) or .npy bool [T,H,W]
-    intrinsics: str | None = None  # text file (3x3 or fx,fy,cx,cy) or inline "fx,fy,cx,cy"
+    # depth: .npy/.npz metres | folder of 16-bit PNG mm | a depth model (see priors.depth_models) | sfm | none;
+    # None = sfm (weight-free structure from motion)
+    depth: str | None = None
+    # masks: folder of PNGs (non-zero = dynamic) | .npy bool [T,H,W] | grounded-sam | DETECTOR+SEGMENTER |
+    # motion | none; None = motion (weight-free)
+    masks: str | None = None
+    mask_prompt: str | None = None  # text prompt of a mask model (None: priors.mask_models.DEFAULT_PROMPT)
+    intrinsics: str | None = None  # text file (3x3 or fx,fy,cx,cy) | inline "fx,fy,cx,cy" | None/auto
     max_frames: int | None = None
     frame_stride: int = 1
     resize: int | None = None  # long side of the processing resolution (outputs stay at input size)
-    default_fov_deg: float = 60.0  # used when no intrinsics are given
+    default_fov_deg: float = 60.0  # used when no intrinsics are given and the depth model has no focal length
+    cache: bool = True  # keep tracks and computed priors in DIR/priors/ for re-runs
 
 
 @dataclass

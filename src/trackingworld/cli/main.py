@@ -33,9 +33,17 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="world-centric dense 3D tracking of a video")
     r.add_argument("input", help="video file or folder of images")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--depth", help=".npy/.npz [T,H,W] metres, or folder of 16-bit PNG millimetres")
-    r.add_argument("--masks", help="folder of PNGs (non-zero = dynamic) or .npy bool [T,H,W]")
-    r.add_argument("--intrinsics", help="text file with a 3x3 matrix or fx,fy,cx,cy; or inline fx,fy,cx,cy")
+    g = r.add_argument_group("priors (default: weight-free, from the video itself)")
+    g.add_argument("--depth", help="FILE (.npy/.npz [T,H,W] metres, or folder of 16-bit PNG mm) | MODEL (e.g. "
+                   "depth-anything-v2-small, depth-pro, zoedepth, unidepth, hf:ID, or a local model folder) | "
+                   "sfm (default: structure from motion, arbitrary scale) | none (constant depth)")
+    g.add_argument("--masks", help="DIR of PNGs (non-zero = dynamic) | FILE .npy bool [T,H,W] | MODEL (grounded-sam "
+                   "or DETECTOR+SEGMENTER) | motion (default: motion the camera cannot explain) | none")
+    g.add_argument("--mask-prompt", help="text prompt of a mask model, e.g. 'dog. person.'")
+    g.add_argument("--intrinsics", help="FILE (3x3 or fx,fy,cx,cy) | inline fx,fy,cx,cy | auto (default: the depth "
+                   "model's focal length when it has one, else a 60 deg horizontal field of view)")
+    g.add_argument("--no-cache", action="store_true",
+                   help="do not keep tracks and computed priors in DIR/priors/ (by default a re-run reuses them)")
     r.add_argument("--method", default="trackingworld", choices=["trackingworld", "baseline"],
                    help="trackingworld (the full method) or baseline (camera-centric lifting, no optimisation)")
     r.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
@@ -157,8 +165,9 @@ def cmd_run(a) -> int:
 
     cfg = RunConfig(
         method=a.method, device=a.device,
-        inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, intrinsics=a.intrinsics,
-                           max_frames=a.max_frames, frame_stride=a.frame_stride, resize=a.resize),
+        inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, mask_prompt=a.mask_prompt,
+                           intrinsics=a.intrinsics, max_frames=a.max_frames, frame_stride=a.frame_stride,
+                           resize=a.resize, cache=not a.no_cache),
         track2d=_track_config(a), optim=_optim_config(a),
     )
     run(cfg, a.out, verbose=not a.quiet)

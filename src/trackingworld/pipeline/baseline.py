@@ -13,14 +13,12 @@ from trackingworld.config import RunConfig
 from trackingworld.io.result import Result
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import lift_camera_frame, sample_maps
-from trackingworld.pipeline.tracks import track_video
-from trackingworld.tracking2d.base import hold_invisible
+from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
 
-def run_baseline(inp: Inputs, cfg: RunConfig, timings: dict | None = None) -> Result:
+def run_baseline(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None) -> Result:
     T, h, w = inp.frames.shape[:3]
     W, H = inp.size_in
-    tr = track_video(inp.frames, cfg.track2d, timings, cfg.device)
     depth = inp.depth if inp.depth is not None else np.ones((T, h, w), np.float32)
     xyz = lift_camera_frame(tr.tracks, depth, inp.K)
     xyz = hold_invisible(xyz, tr.visible)

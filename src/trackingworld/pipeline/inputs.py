@@ -19,7 +19,8 @@ from trackingworld.io.priors import load_depth, load_masks, parse_intrinsics
 class Inputs:
     """Everything at the processing resolution (h, w), plus what is needed to return to the input one.
 
-    frames [T,h,w,3] uint8; depth [T,h,w] float32 metres (None when not given); masks [T,h,w] bool;
+    frames [T,h,w,3] uint8; depth [T,h,w] float32 metres (None until the priors are resolved, unless a file
+    was given); masks [T,h,w] bool (all False until resolved, unless a file was given);
     K [3,3] at the processing resolution; size_in (W, H) of the input frames.
     """
 
@@ -56,8 +57,10 @@ def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
     T, H, W = frames.shape[:3]
     if T < 2:
         raise InputError(f"{cfg.input}: need at least 2 frames, found {T}")
+    from trackingworld.priors.resolve import depth_source, mask_source  # noqa: PLC0415 (cycle)
+
     depth = None
-    if cfg.depth:
+    if cfg.depth and depth_source(cfg.depth) == "file":
         depth = load_depth(cfg.depth, T, cfg.frame_stride)
         if depth.shape[1:] != (H, W):  # depth models often predict at their own size
             depth = resize_stack(depth, W, H, cv2.INTER_LINEAR)
@@ -65,17 +68,14 @@ def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
         fill = np.nanmedian(depth)
         depth = np.nan_to_num(depth, nan=fill)
     masks = np.zeros((T, H, W), bool)
-    if cfg.masks:
+    if cfg.masks and mask_source(cfg.masks) == "file":
         masks = load_masks(cfg.masks, T, cfg.frame_stride)
         if masks.shape[1:] != (H, W):
             masks = resize_stack(masks.astype(np.uint8), W, H, cv2.INTER_NEAREST) > 0
-    if cfg.intrinsics:
+    if cfg.intrinsics and cfg.intrinsics != "auto":
         K_in = parse_intrinsics(cfg.intrinsics)
-    else:
+    else:  # the priors may replace it (a depth model's focal length)
         K_in = default_intrinsics(W, H, cfg.default_fov_deg)
-        if verbose:
-            print(f"[inputs] no intrinsics given: assuming a {cfg.default_fov_deg:.0f} deg horizontal field of view",
-                  file=sys.stderr)
     w, h = W, H
     if cfg.resize and max(W, H) > cfg.resize:
         s = cfg.resize / max(W, H)

@@ -1,4 +1,4 @@
-"""``trackingworld run``: load inputs, run a method, write the result folder atomically."""
+"""``trackingworld run``: load inputs, dense 2D tracks, priors, a method; write the result folder atomically."""
 
 from __future__ import annotations
 
@@ -6,16 +6,40 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from trackingworld.config import RunConfig
 from trackingworld.errors import InputError
 from trackingworld.io.atomic import write_json
+from trackingworld.io.cache import cached
 from trackingworld.io.result import CONFIG_FILE, Result, save_result
 from trackingworld.pipeline.baseline import run_baseline
-from trackingworld.pipeline.inputs import load_inputs
+from trackingworld.pipeline.inputs import Inputs, load_inputs
+from trackingworld.pipeline.tracks import track_video
 from trackingworld.pipeline.world import run_trackingworld
+from trackingworld.priors.resolve import resolve_priors, tracks_key
+from trackingworld.tracking2d.base import TrackResult
 
 METHODS = {"trackingworld": run_trackingworld, "baseline": run_baseline}
 DEFAULT_METHOD = "trackingworld"
+PRIORS_DIR = "priors"  # the cache of tracks and computed priors inside the output folder
+
+
+def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: dict, verbose: bool) -> TrackResult:
+    """Dense 2D tracks at the processing resolution, reused from ``cache_dir`` when nothing they depend on
+    changed."""
+    t0 = time.perf_counter()
+    key = tracks_key(cfg, inp.frames.shape[2], inp.frames.shape[1])
+
+    def compute():
+        tr = track_video(inp.frames, cfg.track2d, None, cfg.device, verbose)
+        return {"tracks": tr.tracks, "visible": tr.visible, "confidence": tr.confidence.astype(np.float16),
+                "queries": tr.queries}
+
+    path = None if cache_dir is None or cfg.track2d.tracker == "file" else cache_dir / "tracks.npz"
+    z = cached(path, key, compute, "2D tracks", verbose)
+    timings["track2d"] = time.perf_counter() - t0
+    return TrackResult(z["tracks"], z["visible"], z["confidence"].astype(np.float32), z["queries"])
 
 
 def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
@@ -33,10 +57,16 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     t0 = time.perf_counter()
     inp = load_inputs(cfg.inputs, verbose)
     timings["load_inputs"] = time.perf_counter() - t0
-    result = METHODS[cfg.method](inp, cfg, timings)
+    cache_dir = out_dir / PRIORS_DIR if cfg.inputs.cache else None
+    tr = dense_tracks(inp, cfg, cache_dir, timings, verbose)
+    t1 = time.perf_counter()
+    inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose)
+    timings["priors"] = time.perf_counter() - t1
+    result = METHODS[cfg.method](inp, tr, cfg, timings)
     timings["total"] = time.perf_counter() - t0
     save_result(out_dir, result)
     write_json(out_dir / CONFIG_FILE, cfg.to_dict())
+    write_json(out_dir / "priors.json", pinfo.__dict__)
     write_json(out_dir / "timings.json", timings)
     if verbose:
         print(f"[run] {result.num_tracks} tracks x {result.num_frames} frames written to {out_dir} "

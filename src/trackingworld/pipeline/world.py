@@ -22,7 +22,6 @@ from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
-from trackingworld.pipeline.tracks import track_video
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
@@ -213,12 +212,11 @@ def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype,
     return hold_invisible(out, vis)
 
 
-def run_trackingworld(inp: Inputs, cfg: RunConfig, timings: dict | None = None) -> Result:
-    """The full method on loaded inputs; see :func:`optimise`."""
+def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None) -> Result:
+    """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`."""
     timings = {} if timings is None else timings
     if inp.depth is None:
-        raise InputError(f"{cfg.inputs.input}: --method trackingworld needs a depth prior (--depth FILE)")
-    tr = track_video(inp.frames, cfg.track2d, timings, cfg.device)
+        raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
     out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed)
     W, H = inp.size_in
     qt = tr.queries[:, 0].astype(np.int32)

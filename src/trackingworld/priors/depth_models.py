@@ -1,0 +1,146 @@
+"""Depth priors from pretrained models: Hugging Face ``transformers`` depth estimators and UniDepth.
+
+Nothing is downloaded unless the user names a hub model; a local folder written by ``save_pretrained`` (or a
+hub id already in the local cache) loads offline. Every model returns a :class:`DepthPrediction`:
+
+- ``metric``: depth in metres (Depth Anything V2 Metric, ZoeDepth, Depth Pro, UniDepth);
+- ``disparity``: relative inverse depth, known only up to an affine map (Depth Anything V2, DPT); turned into
+  depth by :mod:`trackingworld.priors.align`.
+
+Depth Pro and UniDepth also estimate the focal length, used when the user gave no intrinsics.
+"""
+
+from __future__ import annotations
+
+import inspect
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from trackingworld.errors import InputError
+
+# short names for the well-known checkpoints (any hub id or local folder works too)
+DEPTH_MODELS = {
+    "depth-anything-v2-small": "depth-anything/Depth-Anything-V2-Small-hf",
+    "depth-anything-v2-base": "depth-anything/Depth-Anything-V2-Base-hf",
+    "depth-anything-v2-large": "depth-anything/Depth-Anything-V2-Large-hf",
+    "depth-anything-v2-metric-indoor": "depth-anything/Depth-Anything-V2-Metric-Indoor-Small-hf",
+    "depth-anything-v2-metric-outdoor": "depth-anything/Depth-Anything-V2-Metric-Outdoor-Small-hf",
+    "depth-pro": "apple/DepthPro-hf",
+    "zoedepth": "Intel/zoedepth-nyu-kitti",
+    "unidepth": "unidepth:lpiccinelli/unidepth-v2-vits14",
+}
+METRIC_TYPES = {"zoedepth", "depth_pro"}  # model types whose output is metric depth
+
+
+@dataclass
+class DepthPrediction:
+    values: np.ndarray  # [T,H,W] float32: metres (metric) or relative inverse depth (disparity)
+    kind: str  # "metric" | "disparity"
+    focal_px: float | None = None  # at the frames' resolution, when the model estimates it
+    source: str = ""
+
+
+def is_model_spec(spec: str) -> bool:
+    """True when ``spec`` names a depth model (short name, ``hf:ID``, ``unidepth:ID``, or a folder holding a
+    ``config.json``) rather than a depth file."""
+    p = Path(spec)
+    if spec in DEPTH_MODELS or spec.startswith(("hf:", "unidepth:")):
+        return True
+    return p.is_dir() and (p / "config.json").exists()
+
+
+def _model_type(model) -> str:
+    return getattr(model.config, "model_type", "")
+
+
+def _kind(model) -> str:
+    if getattr(model.config, "depth_estimation_type", "relative") == "metric" or _model_type(model) in METRIC_TYPES:
+        return "metric"
+    return "disparity"
+
+
+class HFDepthModel:
+    """A ``transformers`` depth estimator (``AutoModelForDepthEstimation`` + its image processor)."""
+
+    def __init__(self, name: str, device: str = "cpu", batch_size: int = 4):
+        try:
+            from transformers import AutoImageProcessor, AutoModelForDepthEstimation
+        except ImportError as e:
+            raise InputError(f"{name}: depth models need transformers (pip install 'trackingworld[models]')") from e
+        local = Path(name).is_dir()
+        try:
+            self.processor = AutoImageProcessor.from_pretrained(name, local_files_only=local)
+            self.model = AutoModelForDepthEstimation.from_pretrained(name, local_files_only=local).to(device).eval()
+        except (OSError, ValueError) as e:
+            raise InputError(f"{name}: cannot load the depth model ({str(e).splitlines()[0]}); models download from "
+                             "the Hugging Face hub on first use, or give a local folder") from e
+        self.name, self.device, self.batch_size = name, device, batch_size
+        self.kind = _kind(self.model)
+
+    @torch.no_grad()
+    def predict(self, frames: np.ndarray, verbose: bool = True) -> DepthPrediction:
+        """frames [T,H,W,3] uint8 RGB -> depth or disparity at the frames' resolution."""
+        T, H, W = frames.shape[:3]
+        out = np.zeros((T, H, W), np.float32)
+        focals = []
+        post = self.processor.post_process_depth_estimation
+        params = inspect.signature(post).parameters
+        for s in range(0, T, self.batch_size):
+            imgs = list(frames[s:s + self.batch_size])
+            inputs = self.processor(images=imgs, return_tensors="pt").to(self.device)
+            outputs = self.model(**inputs)
+            kw = {"target_sizes": [(H, W)] * len(imgs)}
+            if "source_sizes" in params:  # ZoeDepth removes its padding with the source sizes
+                kw["source_sizes"] = [(H, W)] * len(imgs)
+            for i, r in enumerate(post(outputs, **kw)):
+                out[s + i] = r["predicted_depth"].float().cpu().numpy()
+                if r.get("focal_length") is not None:
+                    focals.append(float(r["focal_length"]))
+            if verbose:
+                print(f"[depth] {self.name}: {min(s + len(imgs), T)}/{T} frames", file=sys.stderr, flush=True)
+        focal = float(np.median(focals)) if focals else None
+        return DepthPrediction(out, self.kind, focal, self.name)
+
+
+class UniDepthModel:
+    """UniDepth (V1/V2) when the ``unidepth`` package is installed: metric depth and intrinsics."""
+
+    def __init__(self, name: str, device: str = "cpu"):
+        try:
+            from unidepth.models import UniDepthV2
+        except ImportError as e:
+            raise InputError(f"{name}: UniDepth is not installed (see github.com/lpiccinelli-eth/UniDepth)") from e
+        try:
+            self.model = UniDepthV2.from_pretrained(name).to(device).eval()
+        except OSError as e:
+            raise InputError(f"{name}: cannot load UniDepth ({str(e).splitlines()[0]})") from e
+        self.name, self.device = name, device
+        self.kind = "metric"
+
+    @torch.no_grad()
+    def predict(self, frames: np.ndarray, verbose: bool = True) -> DepthPrediction:
+        T, H, W = frames.shape[:3]
+        out = np.zeros((T, H, W), np.float32)
+        focals = []
+        for t in range(T):
+            rgb = torch.from_numpy(np.ascontiguousarray(frames[t])).permute(2, 0, 1).to(self.device)
+            pred = self.model.infer(rgb)
+            out[t] = pred["depth"].reshape(H, W).float().cpu().numpy()
+            if "intrinsics" in pred:
+                Kp = pred["intrinsics"].reshape(3, 3).float().cpu().numpy()
+                focals.append(float(np.sqrt(Kp[0, 0] * Kp[1, 1])))
+            if verbose and (t + 1) % 8 == 0:
+                print(f"[depth] {self.name}: {t + 1}/{T} frames", file=sys.stderr, flush=True)
+        return DepthPrediction(out, "metric", float(np.median(focals)) if focals else None, self.name)
+
+
+def load_depth_model(spec: str, device: str = "cpu"):
+    """A depth model from a short name (see ``DEPTH_MODELS``), ``hf:ID``, ``unidepth:ID`` or a local folder."""
+    name = DEPTH_MODELS.get(spec, spec)
+    if name.startswith("unidepth:"):
+        return UniDepthModel(name.split(":", 1)[1], device)
+    return HFDepthModel(name.removeprefix("hf:"), device)

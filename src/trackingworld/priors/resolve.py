@@ -1,0 +1,192 @@
+"""Choosing and computing a run's priors: depth, dynamic masks, intrinsics.
+
+Each prior comes from a file, a model, or the video itself (weight-free, the default):
+
+=============  ==========================================  ==========================================
+prior          given                                       default (``None``)
+=============  ==========================================  ==========================================
+depth          FILE | model name / ``hf:ID`` / folder      ``sfm``: structure from motion on the tracks
+               | ``sfm`` | ``none`` (constant 1)
+masks          DIR | FILE | ``grounded-sam`` /              ``motion``: motion the camera cannot explain
+               ``DETECTOR+SEGMENTER`` | ``motion`` | none
+intrinsics     FILE | ``fx,fy,cx,cy``                      ``auto``: the depth model's focal length when it
+                                                           has one, else a 60 deg horizontal field of view
+=============  ==========================================  ==========================================
+
+Computed priors are cached in ``DIR/priors/`` with a key of everything they depend on.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from trackingworld import __version__
+from trackingworld.config import RunConfig
+from trackingworld.errors import InputError
+from trackingworld.geometry import intrinsics_matrix, scale_intrinsics
+from trackingworld.io.cache import cached, file_identity
+from trackingworld.pipeline.inputs import Inputs
+from trackingworld.pipeline.lift import sample_maps
+from trackingworld.priors.align import disparity_to_depth
+from trackingworld.priors.depth_models import is_model_spec
+from trackingworld.priors.mask_models import DEFAULT_PROMPT, is_mask_model_spec
+from trackingworld.priors.motion_masks import MotionMaskConfig, motion_masks
+from trackingworld.priors.sfm import SfMConfig, sfm_depth
+from trackingworld.tracking2d.base import TrackResult
+
+
+def depth_source(spec: str | None) -> str:
+    """file | model | sfm | none."""
+    if spec is None or spec == "sfm":
+        return "sfm"
+    if spec == "none":
+        return "none"
+    if is_model_spec(spec):
+        return "model"
+    return "file"
+
+
+def mask_source(spec: str | None) -> str:
+    """file | model | motion | none."""
+    if spec is None or spec == "motion":
+        return "motion"
+    if spec == "none":
+        return "none"
+    if is_mask_model_spec(spec):
+        return "model"
+    return "file"
+
+
+@dataclass
+class PriorInfo:
+    depth: str = ""
+    masks: str = ""
+    intrinsics: str = ""
+    messages: list[str] = field(default_factory=list)
+    sfm: dict = field(default_factory=dict)
+
+
+def _say(info: PriorInfo, msg: str, verbose: bool) -> None:
+    info.messages.append(msg)
+    if verbose:
+        print(f"[priors] {msg}", file=sys.stderr, flush=True)
+
+
+def static_tracks(tr: TrackResult, masks: np.ndarray) -> np.ndarray:
+    """[N] bool: tracks off the dynamic masks in most of their visible frames."""
+    m = sample_maps(masks.astype(np.float32), tr.tracks)
+    n = np.maximum(tr.visible.sum(1), 1)
+    return (np.where(tr.visible, m, 0).sum(1) / n) < 0.5
+
+
+def tracks_key(cfg: RunConfig, w: int, h: int) -> dict:
+    """What the dense tracks of a run depend on (the cache key of the tracks and of every prior made from them)."""
+    ic = cfg.inputs
+    return {"version": __version__, "input": file_identity(ic.input), "max_frames": ic.max_frames,
+            "stride": ic.frame_stride, "size": [w, h], "track2d": cfg.track2d.__dict__,
+            "tracks_file": file_identity(cfg.track2d.tracks_file)}
+
+
+def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path | None,
+                   verbose: bool = True) -> tuple[Inputs, PriorInfo]:
+    """Fill in the priors ``inp`` lacks (depth, masks, intrinsics) at the processing resolution."""
+    ic = cfg.inputs
+    T, h, w = inp.frames.shape[:3]
+    info = PriorInfo()
+    base_key = {**tracks_key(cfg, w, h), "seed": cfg.seed}
+
+    def path(name: str) -> Path | None:
+        return None if cache_dir is None else cache_dir / f"{name}.npz"
+
+    K, K_given = inp.K, ic.intrinsics not in (None, "", "auto")
+
+    # depth models run first: Depth Pro and UniDepth also give the focal length
+    dsrc, pred = depth_source(ic.depth), None
+    if dsrc == "model":
+        from trackingworld.priors.depth_models import DepthPrediction, load_depth_model
+
+        def run_model():
+            p = load_depth_model(ic.depth, cfg.device).predict(inp.frames, verbose)
+            return {"values": p.values, "kind": np.array(p.kind), "focal": np.array(p.focal_px or np.nan)}
+
+        z = cached(path("depth_model"), {**base_key, "model": ic.depth}, run_model, "depth model", verbose)
+        pred = DepthPrediction(z["values"], str(z["kind"]), None if np.isnan(z["focal"]) else float(z["focal"]))
+    if K_given:
+        info.intrinsics = f"given ({ic.intrinsics})"
+    elif pred is not None and pred.focal_px:
+        K = intrinsics_matrix(pred.focal_px, pred.focal_px, (w - 1) / 2, (h - 1) / 2)
+        info.intrinsics = f"focal length {pred.focal_px:.1f} px from {ic.depth}"
+    else:
+        info.intrinsics = f"assumed: {ic.default_fov_deg:.0f} deg horizontal field of view"
+    if not K_given:
+        _say(info, f"intrinsics {info.intrinsics}", verbose)
+
+    msrc = mask_source(ic.masks)
+    masks = inp.masks
+    if msrc == "model":
+        from trackingworld.priors.mask_models import load_mask_model
+
+        prompt = ic.mask_prompt or DEFAULT_PROMPT
+        z = cached(path("masks_model"), {**base_key, "model": ic.masks, "prompt": prompt},
+                   lambda: {"masks": load_mask_model(ic.masks, cfg.device).predict(inp.frames, prompt, verbose)},
+                   "mask model", verbose)
+        masks = z["masks"].astype(bool)
+        info.masks = f"{ic.masks} (prompt {prompt!r})"
+    elif msrc == "motion":
+        mcfg = MotionMaskConfig(verbose=verbose)
+        z = cached(path("masks_motion"), {**base_key, "cfg": {**mcfg.__dict__, "verbose": None}},
+                   lambda: {"masks": motion_masks(tr, (T, h, w), mcfg, cfg.seed)[0]},
+                   "motion masks", verbose)
+        masks = z["masks"].astype(bool)
+        info.masks = "motion (weight-free)"
+    elif msrc == "none":
+        masks = np.zeros((T, h, w), bool)
+        info.masks = "none"
+    else:
+        info.masks = f"file {ic.masks}"
+
+    depth = inp.depth
+    need_sfm = dsrc == "sfm" or (pred is not None and pred.kind == "disparity")
+    sfm = None
+    if need_sfm:
+        scfg = SfMConfig(verbose=verbose)
+        key = {**base_key, "masks": ic.masks, "mask_prompt": ic.mask_prompt, "K": K.round(6).tolist(),
+               "cfg": {**scfg.__dict__, "verbose": None}}
+        if msrc == "motion":
+            key["motion_cfg"] = {**MotionMaskConfig().__dict__, "verbose": None}
+
+        def run_sfm():
+            r = sfm_depth(tr, static_tracks(tr, masks), K, masks, scfg)
+            return {"depth": r.depth, "poses_c2w": r.poses_c2w, "ok": np.array(r.ok), "message": np.array(r.message),
+                    "parallax_px": np.array(r.info.get("parallax_px", 0.0))}
+
+        sfm = cached(path("depth_sfm"), key, run_sfm, "structure from motion", verbose)
+        info.sfm = {"ok": bool(sfm["ok"]), "parallax_px": float(sfm["parallax_px"])}
+        _say(info, str(sfm["message"]), verbose)
+    if dsrc == "sfm":
+        depth = sfm["depth"]
+        info.depth = "structure from motion (weight-free, arbitrary scale)"
+    elif dsrc == "none":
+        depth = np.ones((T, h, w), np.float32)
+        info.depth = "none (constant 1)"
+    elif dsrc == "model":
+        if pred.kind == "metric":
+            depth = pred.values
+            info.depth = f"{ic.depth} (metric)"
+        else:
+            ok = bool(sfm["ok"])
+            depth = disparity_to_depth(pred.values, sfm["depth"] if ok else None, ~masks if ok else None)
+            info.depth = (f"{ic.depth} (relative, scale and shift fitted per frame to structure from motion)" if ok
+                          else f"{ic.depth} (relative, shift assumed 0, arbitrary scale: no parallax)")
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nanmedian(depth)).astype(np.float32)
+    else:
+        info.depth = f"file {ic.depth}"
+    if depth is None or not np.isfinite(depth).any():
+        raise InputError(f"{ic.depth}: no usable depth")
+    W, H = inp.size_in
+    K_in = inp.K_in if K_given else scale_intrinsics(K, W / w, H / h)
+    return replace(inp, depth=depth.astype(np.float32), masks=masks, K=K, K_in=K_in), info
