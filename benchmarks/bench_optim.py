@@ -15,16 +15,13 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
+from _common import run_and_evaluate, tracks_file  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
-from trackingworld.eval.evaluate import evaluate_to_file
 from trackingworld.io.frames import read_frames
-from trackingworld.pipeline.run import run
-from trackingworld.pipeline.tracks import track_video
 from trackingworld.synth import render_and_write
 
 ROWS = {
@@ -43,15 +40,6 @@ ROWS = {
 OPT_STAGES = ("labels", "stage1", "stage2", "classify", "rebuild_static", "stage3", "video_depth")
 
 
-def _tracks_file(frames, out: Path, first_frame_only: bool) -> Path:
-    from trackingworld.io.atomic import write_npz
-
-    tr = track_video(frames, Track2DConfig(first_frame_only=first_frame_only), verbose=False)
-    path = out / ("tracks_first.npz" if first_frame_only else "tracks.npz")
-    write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
-    return path
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--preset", default="default")
@@ -62,7 +50,7 @@ def main(argv=None) -> int:
     scene = render_and_write(work / "scene", a.preset, a.seed)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
-    tracks = {ff: _tracks_file(frames, work, ff) for ff in (False, True)}
+    tracks = {ff: tracks_file(frames, work / ("tracks_first.npz" if ff else "tracks.npz"), ff) for ff in (False, True)}
     results = {}
     for name, (method, opts, tef_off) in ROWS.items():
         if a.quick and opts.get("solver") == "adam":
@@ -72,15 +60,8 @@ def main(argv=None) -> int:
             intrinsics=str(inp / "intrinsics.txt")),
             track2d=Track2DConfig(tracker="file", tracks_file=str(tracks[tef_off])),
             optim=OptimConfig(verbose=False, **opts))
-        out = work / f"run{len(results)}"
-        t0 = time.perf_counter()
-        run(cfg, out, verbose=False)
-        wall = time.perf_counter() - t0
-        m = evaluate_to_file(out, scene)
-        tm = json.loads((out / "timings.json").read_text())
-        results[name] = {"metrics": m, "timings": tm, "wall_s": wall,
-                         "optim_s": sum(tm.get(k, 0.0) for k in OPT_STAGES)}
-        print(f"[bench] {name}: {wall:.1f} s", file=sys.stderr)
+        r = run_and_evaluate(cfg, work / f"run{len(results)}", scene, name)
+        results[name] = {**r, "optim_s": sum(r["timings"].get(k, 0.0) for k in OPT_STAGES)}
     write(results, a.preset + (" --quick" if a.quick else ""), frames.shape)
     return 0
 

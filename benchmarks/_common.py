@@ -1,0 +1,33 @@
+"""Shared by the benchmark scripts: dense tracks computed once per scene, and one evaluated run."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trackingworld.config import RunConfig, Track2DConfig
+from trackingworld.eval.evaluate import evaluate_to_file
+from trackingworld.io.atomic import write_npz
+from trackingworld.pipeline.run import run
+from trackingworld.pipeline.tracks import track_video
+
+
+def tracks_file(frames: np.ndarray, path: Path, first_frame_only: bool = False) -> Path:
+    """Dense tracks of ``frames`` written in the CoTracker layout, for ``--tracks`` (every row shares them)."""
+    tr = track_video(frames, Track2DConfig(first_frame_only=first_frame_only), verbose=False)
+    write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
+    return path
+
+
+def run_and_evaluate(cfg: RunConfig, out: Path, scene: Path, name: str) -> dict:
+    """Run ``cfg`` into ``out``, evaluate against ``scene``: metrics, timings and wall time (s)."""
+    t0 = time.perf_counter()
+    run(cfg, out, verbose=False)
+    wall = time.perf_counter() - t0
+    m = evaluate_to_file(out, scene)
+    print(f"[bench] {name}: {wall:.1f} s", file=sys.stderr)
+    return {"metrics": m, "timings": json.loads((out / "timings.json").read_text()), "wall_s": wall}
