@@ -31,3 +31,22 @@ def run_and_evaluate(cfg: RunConfig, out: Path, scene: Path, name: str) -> dict:
     m = evaluate_to_file(out, scene)
     print(f"[bench] {name}: {wall:.1f} s", file=sys.stderr)
     return {"metrics": m, "timings": json.loads((out / "timings.json").read_text()), "wall_s": wall}
+
+
+def fmt(v, nd: int) -> str:
+    """A table cell: ``v`` with ``nd`` decimals, ``-`` for a missing value."""
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def md_table_start(title: str, command: str, head: str) -> list[str]:
+    """Title, command line, header and separator of a markdown results table."""
+    return [title, "", command, "", head, "|" + "---|" * (head.count("|") - 1)]
+
+
+def write_results(stem: str, lines: list[str], data) -> None:
+    """``benchmarks/results/STEM.md`` (and printed) from ``lines``, ``STEM.json`` from ``data``."""
+    out = Path(__file__).parent / "results"
+    out.mkdir(exist_ok=True)
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{stem}.json").write_text(json.dumps(data, indent=1, default=float))
+    print("\n".join(lines))

@@ -12,14 +12,13 @@ world 3D accuracy (all / dynamic), labels, and the optimisation time of each row
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from _common import run_and_evaluate, tracks_file  # noqa: I001 (a sibling script module)
+from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
@@ -66,34 +65,25 @@ def main(argv=None) -> int:
     return 0
 
 
-def _f(v, nd):
-    return "-" if v is None else f"{v:.{nd}f}"
-
-
 def write(results: dict, preset: str, shape) -> None:
-    out = Path(__file__).parent / "results"
-    out.mkdir(exist_ok=True)
     head = ("| configuration | ATE [% path] | RTE [m] | RRE [deg] | track depth AbsRel (prior) | "
             "video depth AbsRel (prior) | world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | "
             "optimisation [s] |")
-    name = preset.split()[0]
-    lines = [f"# World-centric optimiser on the `{name}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})", "",
-             "Command: `.venv/bin/python benchmarks/bench_optim.py --preset " + preset + "`", "", head,
-             "|" + "---|" * (head.count("|") - 1)]
+    scene = preset.split()[0]
+    lines = md_table_start(
+        f"# World-centric optimiser on the `{scene}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})",
+        f"Command: `.venv/bin/python benchmarks/bench_optim.py --preset {preset}`", head)
     for name, r in results.items():
         m = r["metrics"]
         c, td, vd, w, lab = m["camera"], m["track_depth"], m["video_depth"], m["world_3d"], m["labels"]
         lines.append(
-            f"| {name} | {_f(c['ate_pct_path'], 2)} | {_f(c['rte'], 4)} | {_f(c['rre'], 3)} | "
-            f"{_f(td['abs_rel_depth'], 4)} ({_f(m['track_depth_prior']['abs_rel_depth'], 4)}) | "
-            f"{_f(vd['abs_rel_depth'], 4)} ({_f(m['video_depth_prior']['abs_rel_depth'], 4)}) | "
-            f"{_f(w['all']['acc_avg'], 1)} / {_f(w['dynamic']['acc_avg'], 1)} | "
-            f"{_f(lab['static_kept_static'], 1)} | {_f(lab['bg_mover_recall'], 1)} | {r['optim_s']:.1f} |")
-    (out / f"optim_{name}.md").write_text("\n".join(lines) + "\n")
-    (out / f"optim_{name}.json").write_text(json.dumps(
-        {k: {"metrics": v["metrics"], "timings": v["timings"], "wall_s": v["wall_s"]} for k, v in results.items()},
-        indent=1, default=float))
-    print("\n".join(lines))
+            f"| {name} | {fmt(c['ate_pct_path'], 2)} | {fmt(c['rte'], 4)} | {fmt(c['rre'], 3)} | "
+            f"{fmt(td['abs_rel_depth'], 4)} ({fmt(m['track_depth_prior']['abs_rel_depth'], 4)}) | "
+            f"{fmt(vd['abs_rel_depth'], 4)} ({fmt(m['video_depth_prior']['abs_rel_depth'], 4)}) | "
+            f"{fmt(w['all']['acc_avg'], 1)} / {fmt(w['dynamic']['acc_avg'], 1)} | "
+            f"{fmt(lab['static_kept_static'], 1)} | {fmt(lab['bg_mover_recall'], 1)} | {r['optim_s']:.1f} |")
+    write_results(f"optim_{scene}", lines, {k: {"metrics": v["metrics"], "timings": v["timings"], "wall_s": v["wall_s"]}
+                                          for k, v in results.items()})
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import run_and_evaluate, tracks_file  # noqa: I001 (a sibling script module)
+from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
@@ -77,28 +77,23 @@ def main(argv=None) -> int:
     return 0
 
 
-def _f(v, nd):
-    return "-" if v is None else f"{v:.{nd}f}"
-
-
 def write(results: dict, coarse: dict, preset: str, shape, track_s: float) -> None:
-    out = Path(__file__).parent / "results"
-    out.mkdir(exist_ok=True)
     head = ("| priors | ATE [% path] | track depth AbsRel | video depth AbsRel | world 3D acc all / dyn | "
             "static kept [%] | bg-mover recall [%] | priors [s] | run [s] |")
-    lines = [f"# Weight-free priors on the `{preset}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})", "",
-             f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}` (dense 2D tracks computed "
-             f"once, {track_s:.1f} s, shared by every row; run time excludes them)", "", head,
-             "|" + "---|" * (head.count("|") - 1)]
+    lines = md_table_start(
+        f"# Weight-free priors on the `{preset}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})",
+        f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}` (dense 2D tracks computed "
+        f"once, {track_s:.1f} s, shared by every row; run time excludes them)", head)
     for name, r in results.items():
         m = r["metrics"]
         c, td, vd, w, lab = m["camera"], m["track_depth"], m["video_depth"], m["world_3d"], m["labels"]
         lines.append(
-            f"| {name} | {_f(c['ate_pct_path'], 2)} | {_f(td['abs_rel_depth'], 4)} | {_f(vd['abs_rel_depth'], 4)} | "
-            f"{_f(w['all']['acc_avg'], 1)} / {_f(w['dynamic']['acc_avg'], 1)} | {_f(lab['static_kept_static'], 1)} | "
-            f"{_f(lab['bg_mover_recall'], 1)} | {r['timings'].get('priors', 0):.1f} | {r['wall_s']:.1f} |")
+            f"| {name} | {fmt(c['ate_pct_path'], 2)} | {fmt(td['abs_rel_depth'], 4)} | "
+            f"{fmt(vd['abs_rel_depth'], 4)} | {fmt(w['all']['acc_avg'], 1)} / {fmt(w['dynamic']['acc_avg'], 1)} | "
+            f"{fmt(lab['static_kept_static'], 1)} | {fmt(lab['bg_mover_recall'], 1)} | "
+            f"{r['timings'].get('priors', 0):.1f} | {r['wall_s']:.1f} |")
     lines += ["", f"The raw depth prior's track depth AbsRel on the same pixels: "
-              f"{_f(results['given priors']['metrics']['track_depth_prior']['abs_rel_depth'], 4)}.", "",
+              f"{fmt(results['given priors']['metrics']['track_depth_prior']['abs_rel_depth'], 4)}.", "",
               "Dynamic masks against the ground-truth moving pixels:", "",
               "| masks | IoU | recall | precision | recall on the movers the coarse masks miss |",
               "|---|---|---|---|---|",
@@ -108,9 +103,7 @@ def write(results: dict, coarse: dict, preset: str, shape, track_s: float) -> No
     if mq:
         lines.append(f"| motion masks (weight-free) | {mq['iou']:.3f} | {mq['recall']:.3f} | {mq['precision']:.3f} | "
                      f"{mq['bg_mover_recall']:.3f} |")
-    (out / f"priors_{preset}.md").write_text("\n".join(lines) + "\n")
-    (out / f"priors_{preset}.json").write_text(json.dumps(results, indent=1, default=float))
-    print("\n".join(lines))
+    write_results(f"priors_{preset}", lines, results)
 
 
 if __name__ == "__main__":

@@ -18,8 +18,9 @@ from trackingworld.pipeline.tracks import track_video
 from trackingworld.priors.align import disparity_to_depth
 from trackingworld.priors.fill import densify
 from trackingworld.priors.motion_masks import motion_masks, partner_frame
-from trackingworld.priors.resolve import depth_source, mask_source, static_tracks
+from trackingworld.priors.resolve import static_tracks
 from trackingworld.priors.sfm import SfMConfig, sfm_depth
+from trackingworld.priors.sources import depth_source, mask_source
 from trackingworld.tracking2d.base import TrackResult
 
 K = intrinsics_matrix(200.0, 200.0, 159.5, 119.5)

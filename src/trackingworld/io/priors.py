@@ -63,6 +63,12 @@ def load_depth(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
     return depth
 
 
+def fill_invalid_depth(depth: np.ndarray) -> np.ndarray:
+    """``[T,H,W]`` float32 with non-finite and non-positive values replaced by the median of the valid ones."""
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+    return np.nan_to_num(depth, nan=np.nanmedian(depth))
+
+
 def load_masks(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
     """Dynamic masks ``[T,H,W]`` bool from a folder of PNGs (non-zero = dynamic) or a ``.npy`` bool array."""
     path = Path(path)

@@ -12,7 +12,8 @@ from trackingworld.config import InputConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import default_intrinsics, scale_intrinsics
 from trackingworld.io.frames import read_frames
-from trackingworld.io.priors import load_depth, load_masks, parse_intrinsics
+from trackingworld.io.priors import fill_invalid_depth, load_depth, load_masks, parse_intrinsics
+from trackingworld.priors.sources import depth_source, intrinsics_given, mask_source
 
 
 @dataclass
@@ -57,22 +58,18 @@ def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
     T, H, W = frames.shape[:3]
     if T < 2:
         raise InputError(f"{cfg.input}: need at least 2 frames, found {T}")
-    from trackingworld.priors.resolve import depth_source, mask_source  # noqa: PLC0415 (cycle)
-
     depth = None
-    if cfg.depth and depth_source(cfg.depth) == "file":
+    if depth_source(cfg.depth) == "file":
         depth = load_depth(cfg.depth, T, cfg.frame_stride)
         if depth.shape[1:] != (H, W):  # depth models often predict at their own size
             depth = resize_stack(depth, W, H, cv2.INTER_LINEAR)
-        depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
-        fill = np.nanmedian(depth)
-        depth = np.nan_to_num(depth, nan=fill)
+        depth = fill_invalid_depth(depth)
     masks = np.zeros((T, H, W), bool)
-    if cfg.masks and mask_source(cfg.masks) == "file":
+    if mask_source(cfg.masks) == "file":
         masks = load_masks(cfg.masks, T, cfg.frame_stride)
         if masks.shape[1:] != (H, W):
             masks = resize_stack(masks.astype(np.uint8), W, H, cv2.INTER_NEAREST) > 0
-    if cfg.intrinsics and cfg.intrinsics != "auto":
+    if intrinsics_given(cfg.intrinsics):
         K_in = parse_intrinsics(cfg.intrinsics)
     else:  # the priors may replace it (a depth model's focal length)
         K_in = default_intrinsics(W, H, cfg.default_fov_deg)

@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import binary_fill_holes
 
 from trackingworld.optim.densify import cell_representatives
+from trackingworld.priors.fill import splat
 from trackingworld.tracking2d.base import TrackResult
 
 
@@ -51,13 +53,13 @@ def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: Motion
     n_h = 0 if Hm is None else int(inl_h.sum())
     if n_f == 0 and n_h == 0:
         return None
-    ha = np.concatenate([pa, np.ones((len(pa), 1))], 1)
-    hb = np.concatenate([pb, np.ones((len(pb), 1))], 1)
     if n_h >= cfg.homography_ratio * n_f:
-        q = ha @ Hm.T
-        r = np.linalg.norm(q[:, :2] / np.where(np.abs(q[:, 2:]) > 1e-9, q[:, 2:], 1e-9) - pb, axis=1)
+        q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
+        r = np.linalg.norm(q - pb, axis=1)  # transfer error, px
         inl = inl_h.ravel() > 0
     else:
+        ha = np.concatenate([pa, np.ones((len(pa), 1))], 1)
+        hb = np.concatenate([pb, np.ones((len(pb), 1))], 1)
         Fa, Ftb = ha @ F.T, hb @ F
         num = np.abs((hb * Fa).sum(1))
         den = np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2)
@@ -108,13 +110,7 @@ def _clean(mask: np.ndarray, cfg: MotionMaskConfig) -> np.ndarray:
     n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     keep = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= cfg.min_region * H * W)
     keep = keep[keep > 0]
-    m = np.isin(lab, keep).astype(np.uint8)
-    # fill holes: background components not touching the border
-    inv = 1 - m
-    n, lab = cv2.connectedComponents(inv, connectivity=4)
-    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    holes = ~np.isin(lab, border) & (inv > 0)
-    return (m > 0) | holes
+    return binary_fill_holes(np.isin(lab, keep))
 
 
 def motion_masks(tr: TrackResult, shape: tuple[int, int, int], cfg: MotionMaskConfig | None = None,
@@ -133,11 +129,7 @@ def motion_masks(tr: TrackResult, shape: tuple[int, int, int], cfg: MotionMaskCo
         v = np.flatnonzero(tr.visible[:, t] & np.isfinite(score[:, t]) & inside[:, t])
         if not len(v):
             continue
-        x = np.clip(np.round(tr.tracks[v, t, 0]).astype(np.int64), 0, W - 1)
-        y = np.clip(np.round(tr.tracks[v, t, 1]).astype(np.int64), 0, H - 1)
-        idx = y * W + x
-        mov = np.bincount(idx, weights=(score[v, t] > 1).astype(np.float64), minlength=H * W).reshape(H, W)
-        allv = np.bincount(idx, minlength=H * W).reshape(H, W).astype(np.float64)
+        mov, allv = splat(tr.tracks[v, t], (score[v, t] > 1).astype(np.float64), np.ones(len(v)), H, W)
         mov, allv = cv2.filter2D(mov, -1, k), cv2.filter2D(allv, -1, k)
         raw[t] = (mov > cfg.vote * allv) & (allv > 0)
     smooth = raw.copy()

@@ -18,6 +18,7 @@ Computed priors are cached in ``DIR/priors/`` with a key of everything they depe
 
 from __future__ import annotations
 
+import hashlib
 import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -29,36 +30,15 @@ from trackingworld.config import RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import intrinsics_matrix, scale_intrinsics
 from trackingworld.io.cache import cached, file_identity
+from trackingworld.io.priors import fill_invalid_depth
 from trackingworld.pipeline.inputs import Inputs
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.priors.align import disparity_to_depth
-from trackingworld.priors.depth_models import is_model_spec
-from trackingworld.priors.mask_models import DEFAULT_PROMPT, is_mask_model_spec
+from trackingworld.priors.mask_models import DEFAULT_PROMPT
 from trackingworld.priors.motion_masks import MotionMaskConfig, motion_masks
 from trackingworld.priors.sfm import SfMConfig, sfm_depth
+from trackingworld.priors.sources import depth_source, intrinsics_given, mask_source
 from trackingworld.tracking2d.base import TrackResult
-
-
-def depth_source(spec: str | None) -> str:
-    """file | model | sfm | none."""
-    if spec is None or spec == "sfm":
-        return "sfm"
-    if spec == "none":
-        return "none"
-    if is_model_spec(spec):
-        return "model"
-    return "file"
-
-
-def mask_source(spec: str | None) -> str:
-    """file | model | motion | none."""
-    if spec is None or spec == "motion":
-        return "motion"
-    if spec == "none":
-        return "none"
-    if is_mask_model_spec(spec):
-        return "model"
-    return "file"
 
 
 @dataclass
@@ -74,6 +54,11 @@ def _say(info: PriorInfo, msg: str, verbose: bool) -> None:
     info.messages.append(msg)
     if verbose:
         print(f"[priors] {msg}", file=sys.stderr, flush=True)
+
+
+def _settings(cfg) -> dict:
+    """A prior's config as a cache key (its verbosity does not change the result)."""
+    return {**cfg.__dict__, "verbose": None}
 
 
 def static_tracks(tr: TrackResult, masks: np.ndarray) -> np.ndarray:
@@ -102,7 +87,7 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
     def path(name: str) -> Path | None:
         return None if cache_dir is None else cache_dir / f"{name}.npz"
 
-    K, K_given = inp.K, ic.intrinsics not in (None, "", "auto")
+    K, K_given = inp.K, intrinsics_given(ic.intrinsics)
 
     # depth models run first: Depth Pro and UniDepth also give the focal length
     dsrc, pred = depth_source(ic.depth), None
@@ -113,7 +98,8 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
             p = load_depth_model(ic.depth, cfg.device).predict(inp.frames, verbose)
             return {"values": p.values, "kind": np.array(p.kind), "focal": np.array(p.focal_px or np.nan)}
 
-        z = cached(path("depth_model"), {**base_key, "model": ic.depth}, run_model, "depth model", verbose)
+        key = {**base_key, "model": file_identity(ic.depth)}  # a local folder by its files, a hub id by name
+        z = cached(path("depth_model"), key, run_model, "depth model", verbose)
         pred = DepthPrediction(z["values"], str(z["kind"]), None if np.isnan(z["focal"]) else float(z["focal"]))
     if K_given:
         info.intrinsics = f"given ({ic.intrinsics})"
@@ -138,7 +124,7 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         info.masks = f"{ic.masks} (prompt {prompt!r})"
     elif msrc == "motion":
         mcfg = MotionMaskConfig(verbose=verbose)
-        z = cached(path("masks_motion"), {**base_key, "cfg": {**mcfg.__dict__, "verbose": None}},
+        z = cached(path("masks_motion"), {**base_key, "cfg": _settings(mcfg)},
                    lambda: {"masks": motion_masks(tr, (T, h, w), mcfg, cfg.seed)[0]},
                    "motion masks", verbose)
         masks = z["masks"].astype(bool)
@@ -154,14 +140,12 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
     sfm = None
     if need_sfm:
         scfg = SfMConfig(verbose=verbose)
-        key = {**base_key, "masks": ic.masks, "mask_prompt": ic.mask_prompt, "K": K.round(6).tolist(),
-               "cfg": {**scfg.__dict__, "verbose": None}}
-        if msrc == "motion":
-            key["motion_cfg"] = {**MotionMaskConfig().__dict__, "verbose": None}
+        key = {**base_key, "masks": hashlib.sha1(np.packbits(masks)).hexdigest(), "K": K.round(6).tolist(),
+               "cfg": _settings(scfg)}
 
         def run_sfm():
             r = sfm_depth(tr, static_tracks(tr, masks), K, masks, scfg)
-            return {"depth": r.depth, "poses_c2w": r.poses_c2w, "ok": np.array(r.ok), "message": np.array(r.message),
+            return {"depth": r.depth, "ok": np.array(r.ok), "message": np.array(r.message),
                     "parallax_px": np.array(r.info.get("parallax_px", 0.0))}
 
         sfm = cached(path("depth_sfm"), key, run_sfm, "structure from motion", verbose)
@@ -182,10 +166,10 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
             depth = disparity_to_depth(pred.values, sfm["depth"] if ok else None, ~masks if ok else None)
             info.depth = (f"{ic.depth} (relative, scale and shift fitted per frame to structure from motion)" if ok
                           else f"{ic.depth} (relative, shift assumed 0, arbitrary scale: no parallax)")
-        depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nanmedian(depth)).astype(np.float32)
+        depth = fill_invalid_depth(depth)
     else:
         info.depth = f"file {ic.depth}"
-    if depth is None or not np.isfinite(depth).any():
+    if not np.isfinite(depth).any():
         raise InputError(f"{ic.depth}: no usable depth")
     W, H = inp.size_in
     K_in = inp.K_in if K_given else scale_intrinsics(K, W / w, H / h)

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from trackingworld.config import OptimConfig
+from trackingworld.geometry import invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import cell_representatives
 from trackingworld.priors.fill import densify
@@ -100,15 +101,16 @@ def triangulate(uv: np.ndarray, vis: np.ndarray, R: np.ndarray, t: np.ndarray, K
     Tracks seen in fewer than two frames get NaN.
     """
     N, T = vis.shape
-    P = np.concatenate([R, t[:, :, None]], 2)  # [T,3,4]
-    centres = -np.einsum("tji,tj->ti", R, t)  # camera centres [T,3]
+    w2c = pose_from_rt(R, t)  # [T,4,4]
+    P = w2c[:, :3]  # [T,3,4]
+    centres = invert_pose(w2c)[:, :3, 3]  # [T,3]
     X = np.full((N, 3), np.nan)
     err = np.full(N, np.inf)
     ang = np.zeros(N)
     for s in range(0, N, chunk):
         sl = slice(s, min(N, s + chunk))
         u, v = uv[sl].astype(np.float64), vis[sl]
-        xn = (u - K[[0, 1], [2, 2]]) / K[[0, 1], [0, 1]]
+        xn = unproject(u, np.ones(u.shape[:-1]), K)  # normalised image coordinates [n,T,3]
         a = xn[..., 0:1] * P[None, :, 2] - P[None, :, 0]  # [n,T,4]
         b = xn[..., 1:2] * P[None, :, 2] - P[None, :, 1]
         w = v[..., None].astype(np.float64)
@@ -118,10 +120,7 @@ def triangulate(uv: np.ndarray, vis: np.ndarray, R: np.ndarray, t: np.ndarray, K
         h = vecs[:, :, 0]
         Xs = h[:, :3] / np.where(np.abs(h[:, 3:]) > 1e-12, h[:, 3:], 1e-12)
         idx = np.flatnonzero(ok)
-        Y = np.einsum("tij,nj->nti", R, Xs) + t[None]
-        proj = np.einsum("ij,ntj->nti", K, Y)
-        z = Y[..., 2]
-        pix = proj[..., :2] / np.where(np.abs(z[..., None]) > 1e-9, z[..., None], 1e-9)
+        pix, z = project(transform(w2c[None], Xs[:, None]), K, eps=1e-9)
         e = np.where(v[idx] & (z > 1e-6), np.linalg.norm(pix - u[idx], axis=-1), 0.0)
         e = np.where(v[idx] & (z <= 1e-6), np.inf, e)
         rays = Xs[:, None] - centres[None]
@@ -134,6 +133,17 @@ def triangulate(uv: np.ndarray, vis: np.ndarray, R: np.ndarray, t: np.ndarray, K
         err[s + idx] = e.max(1)
         ang[s + idx] = ang_s
     return X, err, ang
+
+
+def _camera_depths(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Depth ``[N,T]`` of world points ``X [N,3]`` in the cameras (world-to-camera ``R [T,3,3]``, ``t [T,3]``)."""
+    return transform(pose_from_rt(R, t)[None], X[:, None])[..., 2]
+
+
+def _nearest(reg: np.ndarray, f: int) -> int:
+    """The registered frame closest to frame ``f``."""
+    near = np.flatnonzero(reg)
+    return int(near[np.argmin(np.abs(near - f))])
 
 
 def _register(X: np.ndarray, has3d: np.ndarray, uv_f: np.ndarray, vis_f: np.ndarray, K: np.ndarray,
@@ -171,7 +181,7 @@ def _bundle_adjust(R, t, X, uv, vis, K, ref: int, cfg: SfMConfig, device="cpu"):
     """Huber bundle adjustment (stage-2 solver without a depth prior); frame ``ref`` fixed."""
     T = vis.shape[1]
     order = [ref] + [f for f in range(T) if f != ref]  # the solver keeps its frame 0 fixed
-    z = np.einsum("tij,nj->nti", R, X)[..., 2] + t[None, :, 2]
+    z = _camera_depths(R, t, X)
     med_z = float(np.median(z[vis]))
     f = float(np.sqrt(K[0, 0] * K[1, 1]))
     # lambda_asap so that the eliminated offsets make a Huber kernel of threshold reproj_px at the median depth
@@ -187,11 +197,11 @@ def _bundle_adjust(R, t, X, uv, vis, K, ref: int, cfg: SfMConfig, device="cpu"):
 
 
 def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConfig):
-    """Incremental SfM on the static tracks (``static [N]`` bool). Returns (R [T,3,3], t [T,3]) world-to-camera
-    (NaN rows for frames that could not be registered), points [n,3] of the tracks ``idx [n]``, and info;
-    or None when the best pair has too little parallax."""
+    """Incremental SfM on the static tracks (``static [N]`` bool). Returns ((R [T,3,3], t [T,3] world-to-camera,
+    NaN for frames that could not be registered; reg [T] bool, the registered frames), info), or (None, info)
+    when it cannot start (too little parallax, no essential matrix) or too few points survive."""
     uv, vis = tr.tracks, tr.visible
-    N, T = vis.shape
+    T = vis.shape[1]
     idx = np.flatnonzero(static & (vis.sum(1) >= 2))
     idx = idx[cell_representatives(tr.queries[idx], cfg.cell)]
     if len(idx) > cfg.max_points:  # keep the longest tracks
@@ -209,7 +219,7 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
     if E is None:
         return None, info
     E = E[:3]
-    _, Rb, tb, m = cv2.recoverPose(E, u[both, a], u[both, b], K, mask=m)
+    _, Rb, tb, _ = cv2.recoverPose(E, u[both, a], u[both, b], K, mask=m)
     R = np.full((T, 3, 3), np.nan)
     t = np.full((T, 3), np.nan)
     R[a], t[a] = np.eye(3), np.zeros(3)
@@ -227,8 +237,7 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
 
     retriangulate()
     for f in _order(a, b, T):
-        near = np.flatnonzero(reg)
-        g = near[np.argmin(np.abs(near - f))]
+        g = _nearest(reg, f)
         pose = _register(X, has3d, u[:, f], v[:, f], K, cfg, (R[g], t[g]))
         if pose is None:
             continue
@@ -238,9 +247,8 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
     info["registered"] = int(reg.sum())
     if has3d.sum() < 30:
         return None, info
-    keep = has3d
-    Rr, tr_, Xr, costs = _bundle_adjust(np.nan_to_num(R)[reg], np.nan_to_num(t)[reg], X[keep], u[keep][:, reg],
-                                        v[keep][:, reg], K, int(np.flatnonzero(np.flatnonzero(reg) == a)[0]), cfg)
+    Rr, tr_, _, costs = _bundle_adjust(R[reg], t[reg], X[has3d], u[has3d][:, reg], v[has3d][:, reg], K,
+                                       int(np.flatnonzero(np.flatnonzero(reg) == a)[0]), cfg)
     R[reg], t[reg] = Rr, tr_
     info["ba_loss"] = costs
     return (R, t, reg), info
@@ -249,9 +257,8 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
 def _fill_poses(R: np.ndarray, t: np.ndarray, reg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unregistered frames take the pose of the nearest registered one."""
     R, t = R.copy(), t.copy()
-    near = np.flatnonzero(reg)
     for f in np.flatnonzero(~reg):
-        g = near[np.argmin(np.abs(near - f))]
+        g = _nearest(reg, f)
         R[f], t[f] = R[g], t[g]
     return R, t
 
@@ -260,7 +267,7 @@ def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6) -> np.nd
     """Give each connected region of ``mask [H,W]`` one depth: the median of ``depth [H,W]`` over the static
     ring pixels below the region's centre row, or over the whole ring."""
     out = depth.copy()
-    n, lab, stats, cent = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
     rows = np.arange(mask.shape[0])[:, None]
     for i in range(1, n):
@@ -299,7 +306,7 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
     X, err, ang = triangulate(tr.tracks[sel], vis[sel], R, t, K)
     good = (err < cfg.reproj_px * 2) & (ang >= 0.25 * cfg.min_angle_deg)
     sel, X, ang = sel[good], X[good], ang[good]
-    z_all = np.einsum("tij,nj->nti", R, X)[..., 2] + t[None, :, 2]
+    z_all = _camera_depths(R, t, X)
     scale = float(np.median(z_all[vis[sel] & (z_all > 0)]))
     weight = np.clip(ang / (4 * cfg.min_angle_deg), 0.05, 1.0)
     depth = np.ones((T, H, W), np.float32)
@@ -309,9 +316,7 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
             continue
         depth[f] = np.exp(fill_dynamic(densify(tr.tracks[sel[w], f], np.log(z_all[w, f] / scale), H, W, weight[w]),
                                        masks[f]))
-    poses = np.tile(np.eye(4), (T, 1, 1))
-    poses[:, :3, :3] = R.transpose(0, 2, 1)
-    poses[:, :3, 3] = -np.einsum("tji,tj->ti", R, t) / scale
+    poses = invert_pose(pose_from_rt(R, t / scale))
     info.update(triangulated=int(len(sel)), scale=scale)
     msg = "depth from structure from motion: the scale is arbitrary (median depth 1)"
     _log(cfg, f"{msg}; {len(sel)} static tracks triangulated")
