@@ -226,3 +226,23 @@ def test_run_with_a_relative_depth_model_and_cache(tiny_scene, tmp_path, tiny_de
     assert main(args) == 0  # a re-run reuses everything
     assert capsys.readouterr().err.count("[cache]") == 4
     assert {p.name: p.stat().st_mtime_ns for p in (out / "priors").iterdir()} == files
+
+
+def test_cache_recomputes_on_key_change_and_on_a_corrupt_file(tmp_path):
+    from trackingworld.io.cache import cached
+
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"a": np.arange(3)}
+
+    path = tmp_path / "x.npz"
+    assert (cached(path, {"k": 1}, compute, verbose=False)["a"] == np.arange(3)).all()
+    cached(path, {"k": 1}, compute, verbose=False)
+    assert len(calls) == 1  # reused
+    cached(path, {"k": 2}, compute, verbose=False)
+    assert len(calls) == 2  # another key
+    path.write_bytes(b"PK\x03\x04 not a zip")
+    assert (cached(path, {"k": 2}, compute, verbose=False)["a"] == np.arange(3)).all()
+    assert len(calls) == 3

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -47,7 +48,7 @@ def load_cached(path: Path, key: dict) -> dict[str, np.ndarray] | None:
             if "_key" not in z.files or str(z["_key"]) != _key_text(key):
                 return None
             return {k: z[k] for k in z.files if k != "_key"}
-    except (OSError, ValueError):
+    except (OSError, ValueError, zipfile.BadZipFile, KeyError):  # unreadable: recompute and overwrite
         return None
 
 
