@@ -57,7 +57,7 @@ def evaluate(result_dir: str | Path, scene_dir: str | Path) -> dict:
     if gt["depth"].shape[1:] != (H, W):
         raise InputError(f"{scene_dir}: ground truth is {gt['depth'].shape[2]}x{gt['depth'].shape[1]}, "
                          f"result is {W}x{H}")
-    out: dict = {"frames": T, "size": [W, H], "tracks": res.num_tracks}
+    out: dict = {"frames": T, "size": [W, H], "tracks": res.num_tracks, "gt_scene": str(Path(scene_dir).resolve())}
     al = sim3_from_trajectories(res.poses_c2w, gt["poses_c2w"])
     out["camera"] = camera_metrics(res.poses_c2w, gt["poses_c2w"], al)
 

@@ -79,3 +79,36 @@ def read_frames(
     if len(shapes) != 1:
         raise InputError(f"{path}: frames differ in size ({sorted(shapes)})")
     return np.stack(frames), (float(fps) / stride if fps else None)
+
+
+def frames_for_result(result_dir: str | os.PathLike, shape: tuple[int, int, int],
+                      video: str | os.PathLike | None = None) -> tuple[np.ndarray | None, str]:
+    """The input frames ``[T,H,W,3]`` of a result folder, read again from the input named in its
+    ``config.json`` (or from ``video``), with the run's frame stride and cap.
+
+    ``shape`` is the result's (T, H, W). Returns (frames, "") or (None, why not) when the input has moved or
+    does not match the result: callers fall back to the tracks' own colours."""
+    import json
+
+    result_dir = Path(result_dir)
+    stride, cap = 1, None
+    cfg_path = result_dir / "config.json"
+    if cfg_path.exists():
+        try:
+            inputs = json.loads(cfg_path.read_text()).get("inputs", {})
+        except (OSError, ValueError):
+            inputs = {}
+        stride, cap = int(inputs.get("frame_stride") or 1), inputs.get("max_frames")
+        if video is None and inputs.get("input"):
+            video = Path(inputs["input"])
+            if not video.is_absolute() and not video.exists():
+                video = result_dir / video
+    if video is None:
+        return None, f"{cfg_path}: no input recorded"
+    try:
+        frames, _ = read_frames(video, cap or shape[0], stride)
+    except InputError as e:
+        return None, str(e)
+    if frames.shape[:3] != tuple(shape):
+        return None, f"{video}: frames {frames.shape[:3]} do not match the result's {tuple(shape)}"
+    return frames, ""

@@ -1,0 +1,154 @@
+"""What to draw of a result, as pure functions on arrays: which tracks, where, in which colour.
+
+Shared by the interactive viewer, the renderer and the rerun export. Conventions as everywhere in the
+package: world metres, camera-to-world 4x4 poses, OpenCV camera axes (x right, y down, z forward), pixels
+x right / y down. Display subsamples, it never edits the result: every function returns indices into it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trackingworld.geometry import invert_pose, transform
+
+STATIC_COLOR = np.array([120, 150, 190], np.uint8)  # label colours: static blue-grey
+DYNAMIC_COLOR = np.array([255, 110, 20], np.uint8)  # dynamic orange
+COLOR_MODES = ("video", "video + dynamic tint", "label", "depth")
+
+
+@dataclass
+class DisplayConfig:
+    """How much of a dense result is drawn. Defaults keep a browser smooth with ~1M-track results."""
+
+    max_points: int = 150_000  # points of the current frame
+    max_static_points: int = 300_000  # points of the accumulated static map
+    trail_tracks: int = 400  # dynamic tracks drawn with trails
+    trail_length: int = 12  # frames of a trail
+    seed: int = 0
+
+
+def display_order(n: int, seed: int = 0) -> np.ndarray:
+    """A fixed random permutation of ``n`` track indices. Taking its first k members that pass a filter gives
+    nested, stable subsets: more density adds points and never swaps the ones already drawn."""
+    return np.random.default_rng(seed).permutation(n)
+
+
+def first_k(order: np.ndarray, keep: np.ndarray, k: int) -> np.ndarray:
+    """The first ``k`` indices of ``order`` where ``keep`` [N] bool holds, in ``order``'s order."""
+    idx = order[keep[order]]
+    return idx[:k] if k is not None and k >= 0 else idx
+
+
+def frame_indices(visible: np.ndarray, t: int, order: np.ndarray, k: int) -> np.ndarray:
+    """Indices of up to ``k`` tracks visible in frame ``t`` (``visible`` [N,T] bool)."""
+    return first_k(order, visible[:, t], k)
+
+
+def static_map(tracks_3d: np.ndarray, query_frame: np.ndarray, is_dynamic: np.ndarray, order: np.ndarray,
+               k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``k`` static tracks and their world position at their query frame: (indices [M], xyz [M,3])."""
+    idx = first_k(order, ~is_dynamic, k)
+    return idx, tracks_3d[idx, query_frame[idx]]
+
+
+def sample_colors(frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """RGB [M,3] uint8 of ``frame`` [H,W,3] at the nearest pixel of ``uv`` [M,2] (clamped to the image)."""
+    H, W = frame.shape[:2]
+    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
+    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    return frame[y, x]
+
+
+def depth_colors(z: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Turbo colours [M,3] uint8 of depths ``z`` [M] (near red, far blue), on the 2-98 percentile range."""
+    import cv2
+
+    if z.size == 0:
+        return np.zeros((0, 3), np.uint8)
+    lo = np.percentile(z, 2) if lo is None else lo
+    hi = np.percentile(z, 98) if hi is None else hi
+    v = np.clip((hi - z) / max(hi - lo, 1e-9), 0, 1)
+    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
+    return lut[np.rint(v * 255).astype(np.int64)]
+
+
+def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, is_dynamic: np.ndarray,
+                 colors: np.ndarray, frame: np.ndarray | None = None, depth: np.ndarray | None = None) -> np.ndarray:
+    """Colours [M,3] uint8 of tracks ``idx`` in frame ``t`` for a colour ``mode`` of :data:`COLOR_MODES`.
+
+    ``video`` samples the current frame (the query-frame colour ``colors`` [N,3] without frames); ``label``
+    is blue-grey static / orange dynamic; ``depth`` needs the tracks' camera depths ``depth`` [M]."""
+    if mode not in COLOR_MODES:
+        raise ValueError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
+    dyn = is_dynamic[idx]
+    if mode == "label":
+        return np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
+    if mode == "depth":
+        return depth_colors(depth)
+    rgb = sample_colors(frame, tracks_2d[idx, t]) if frame is not None else colors[idx]
+    if mode == "video + dynamic tint":
+        rgb = rgb.astype(np.float32)
+        rgb[dyn] = 0.45 * rgb[dyn] + 0.55 * DYNAMIC_COLOR
+        rgb = rgb.astype(np.uint8)
+    return rgb
+
+
+def trail_indices(is_dynamic: np.ndarray, visible: np.ndarray, order: np.ndarray, k: int) -> np.ndarray:
+    """Up to ``k`` dynamic tracks for trails, preferring tracks visible in many frames."""
+    dyn = order[is_dynamic[order]]
+    if dyn.size <= k:
+        return dyn
+    seen = visible[dyn].sum(1)
+    keep = np.argsort(-seen, kind="stable")[: 4 * k]  # the best-observed quarter, then a spread sample
+    return dyn[np.sort(keep)[:k]]
+
+
+def trail_segments(tracks_3d: np.ndarray, idx: np.ndarray, t: int, length: int) -> tuple[np.ndarray, np.ndarray]:
+    """Line segments of the last ``length`` frames of tracks ``idx`` up to frame ``t``.
+
+    Returns (segments [M*L,2,3] world metres, fade [M*L] in (0,1], 1 at the newest segment), L = the number of
+    segments available (min(length, t))."""
+    t0 = max(0, t - length)
+    if t - t0 < 1 or idx.size == 0:
+        return np.zeros((0, 2, 3), np.float32), np.zeros(0, np.float32)
+    p = tracks_3d[idx, t0:t + 1]  # [M,L+1,3]
+    seg = np.stack([p[:, :-1], p[:, 1:]], axis=2).reshape(-1, 2, 3)
+    L = t - t0
+    fade = np.tile(np.arange(1, L + 1, dtype=np.float32) / L, idx.size)
+    return seg.astype(np.float32), fade
+
+
+def fade_to(colors: np.ndarray, fade: np.ndarray, background=(255, 255, 255)) -> np.ndarray:
+    """Blend colours [M,3] toward ``background`` as ``fade`` [M] goes to 0 (a trail fading out)."""
+    bg = np.asarray(background, np.float32)
+    out = bg + (colors.astype(np.float32) - bg) * fade[:, None]
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def camera_depths(tracks_3d_t: np.ndarray, pose_c2w: np.ndarray) -> np.ndarray:
+    """Camera z [M] of world points [M,3] seen from a camera-to-world pose."""
+    return transform(invert_pose(pose_c2w.astype(np.float64)), tracks_3d_t.astype(np.float64))[:, 2]
+
+
+def scene_extent(poses_c2w: np.ndarray, depth: np.ndarray) -> float:
+    """A length for sizing things on screen: the median scene depth (metres), never below the camera path's
+    extent."""
+    d = depth[np.isfinite(depth) & (depth > 0)]
+    med = float(np.median(d)) if d.size else 1.0
+    c = poses_c2w[:, :3, 3]
+    return max(med, float(np.linalg.norm(c.max(0) - c.min(0))), 1e-6)
+
+
+def base_point_size(K: np.ndarray, depth: np.ndarray, drawn: int, total: int) -> float:
+    """World point size (metres) that makes ``drawn`` of ``total`` points about cover the surface they sample:
+    one pixel's footprint at the median depth, grown by sqrt of the subsampling factor."""
+    d = depth[np.isfinite(depth) & (depth > 0)]
+    med = float(np.median(d)) if d.size else 1.0
+    return 1.5 * med / float(K[0, 0]) * float(np.sqrt(max(total, 1) / max(drawn, 1)))
+
+
+def vertical_fov(K: np.ndarray, height: int) -> float:
+    """Vertical field of view in radians of a pinhole ``K`` for an image ``height`` px tall."""
+    return float(2.0 * np.arctan2(height / 2.0, K[1, 1]))
