@@ -1,4 +1,4 @@
-"""``trackingworld`` command: synth, run, eval (and track2d once the dense tracker lands)."""
+"""``trackingworld`` command: synth, run, track2d, eval, view, render, export."""
 
 from __future__ import annotations
 
@@ -68,6 +68,48 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("dir", help="result folder (holding result.npz)")
     e.add_argument("--gt", required=True, help="scene folder written by `trackingworld synth`")
     e.add_argument("--json", action="store_true", help="print the full metrics as JSON")
+
+    v = sub.add_parser("view", help="open a result in the interactive 4D viewer (browser, localhost)")
+    v.add_argument("dir", help="result folder (holding result.npz)")
+    v.add_argument("--port", type=int, default=8080)
+    v.add_argument("--host", default="127.0.0.1", help="127.0.0.1 (default, this machine only) or 0.0.0.0")
+    v.add_argument("--max-points", type=int, default=None,
+                   help="points per frame sent to the browser (default 150000; the density slider goes lower)")
+    v.add_argument("--video", help="input video or image folder, when it has moved since the run")
+
+    from trackingworld.viz.render import VIEWS, RenderConfig
+
+    d = RenderConfig()
+    n = sub.add_parser("render", help="write shareable videos and plots into DIR/render/")
+    n.add_argument("dir", help="result folder (holding result.npz)")
+    n.add_argument("--only", nargs="+", choices=["tracks", "scene", "path"], default=["tracks", "scene", "path"],
+                   help="tracks: tracks_2d.mp4, scene: scene_3d.mp4, path: camera_path.png (default: all)")
+    n.add_argument("--color-by", default=d.color_by, choices=["depth", "label"], help="colour of the 2D tracks")
+    n.add_argument("--view", default=d.view, choices=VIEWS,
+                   help="viewpoint of scene_3d.mp4: orbit (swings about the scene), follow (behind and above the "
+                        "camera) or input (the estimated camera itself)")
+    n.add_argument("--swing", type=float, default=d.swing_deg, help="orbit swing, degrees either side")
+    n.add_argument("--elevation", type=float, default=d.elevation_deg, help="orbit/follow elevation, degrees")
+    n.add_argument("--max-tracks", type=int, default=d.max_tracks, help="2D tracks drawn per frame (about)")
+    n.add_argument("--max-points", type=int, default=d.max_points, help="static points in the 3D video")
+    n.add_argument("--fps", type=float, default=d.fps)
+    n.add_argument("--gt", help="synthetic scene folder: plot the camera path against its ground truth "
+                   "(default: the scene of an earlier `trackingworld eval`, if any)")
+    n.add_argument("--video", help="input video or image folder, when it has moved since the run")
+    n.add_argument("--quiet", action="store_true")
+
+    from trackingworld.io.export import FORMATS
+
+    x = sub.add_parser("export", help="write a result in another tool's format (into DIR/export/)")
+    x.add_argument("dir", help="result folder (holding result.npz)")
+    x.add_argument("--format", required=True, choices=FORMATS)
+    x.add_argument("--out", help="output file or folder (default: DIR/export/<name>)")
+    x.add_argument("--max-points", type=int, default=None,
+                   help="cap on exported tracks for colmap (default 100000), nerfstudio/ply (300000), rrd "
+                   "(150000); tum and tapvid3d keep all")
+    x.add_argument("--no-images", action="store_true", help="colmap/nerfstudio: do not write the frames")
+    x.add_argument("--video", help="input video or image folder, when it has moved since the run")
+    x.add_argument("--quiet", action="store_true")
     return p
 
 
@@ -187,6 +229,31 @@ def cmd_eval(a) -> int:
     return 0
 
 
+def cmd_view(a) -> int:
+    from trackingworld.viz.viewer import serve
+
+    serve(a.dir, port=a.port, host=a.host, video=a.video, max_points=a.max_points)
+    return 0
+
+
+def cmd_render(a) -> int:
+    from trackingworld.viz.render import RenderConfig, render
+
+    cfg = RenderConfig(color_by=a.color_by, view=a.view, swing_deg=a.swing, elevation_deg=a.elevation,
+                       max_tracks=a.max_tracks, max_points=a.max_points, fps=a.fps)
+    out = render(a.dir, cfg, gt=a.gt, video=a.video, what=tuple(a.only), verbose=not a.quiet)
+    for p in out.values():
+        print(p)
+    return 0
+
+
+def cmd_export(a) -> int:
+    from trackingworld.io.export import export
+
+    print(export(a.dir, a.format, a.out, a.max_points, a.video, images=not a.no_images, verbose=not a.quiet))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     a = p.parse_args(argv)
@@ -199,7 +266,8 @@ def main(argv: list[str] | None = None) -> int:
         p.print_help()
         return 2
     try:
-        return {"synth": cmd_synth, "run": cmd_run, "eval": cmd_eval, "track2d": cmd_track2d}[a.cmd](a)
+        return {"synth": cmd_synth, "run": cmd_run, "eval": cmd_eval, "track2d": cmd_track2d, "view": cmd_view,
+                "render": cmd_render, "export": cmd_export}[a.cmd](a)
     except InputError as e:
         print(f"trackingworld {a.cmd}: error: {e}", file=sys.stderr)
         return 2

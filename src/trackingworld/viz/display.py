@@ -61,6 +61,20 @@ def sample_colors(frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return frame[y, x]
 
 
+def query_colors(frames: np.ndarray | None, tracks_2d: np.ndarray, query_frame: np.ndarray, colors: np.ndarray,
+                 idx: np.ndarray) -> np.ndarray:
+    """RGB [M,3] uint8 of tracks ``idx`` at their query frame: from ``frames`` [T,H,W,3] when given, else the
+    result's own ``colors`` [N,3]."""
+    if frames is None:
+        return colors[idx]
+    H, W = frames.shape[1:3]
+    qf = query_frame[idx]
+    uv = tracks_2d[idx, qf]
+    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
+    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    return frames[qf, y, x]
+
+
 def depth_colors(z: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
     """Turbo colours [M,3] uint8 of depths ``z`` [M] (near red, far blue), on the 2-98 percentile range."""
     import cv2

@@ -107,12 +107,7 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
     w, h = int(round(W * s)) // 2 * 2, int(round(H * s)) // 2 * 2
     order = D.display_order(res.num_tracks, cfg.seed)
     sidx, sxyz = D.static_map(res.tracks_3d, res.query_frame, res.is_dynamic, order, cfg.max_points)
-    if frames is not None:
-        scol = frames[res.query_frame[sidx], np.clip(np.rint(res.tracks_2d[sidx, res.query_frame[sidx], 1]), 0,
-                                                     H - 1).astype(int),
-                      np.clip(np.rint(res.tracks_2d[sidx, res.query_frame[sidx], 0]), 0, W - 1).astype(int)]
-    else:
-        scol = res.colors[sidx]
+    scol = D.query_colors(frames, res.tracks_2d, res.query_frame, res.colors, sidx)
     dyn_idx = order[res.is_dynamic[order]]
     trail_idx = D.trail_indices(res.is_dynamic, res.visible, order, 300)
     extent = D.scene_extent(res.poses_c2w, res.depth)

@@ -177,16 +177,10 @@ class Viewer:
         r = self.res
         idx, xyz = D.static_map(r.tracks_3d, r.query_frame, r.is_dynamic, self.order,
                                 self._k(self.cfg.max_static_points))
-        frame = None if self.frames is None else self.frames[r.query_frame[idx]]
         if self.color_mode.value == "label":
             col = np.broadcast_to(D.STATIC_COLOR, (len(idx), 3))
-        elif frame is not None:
-            uv = r.tracks_2d[idx, r.query_frame[idx]]
-            x = np.clip(np.rint(uv[:, 0]).astype(int), 0, self.W - 1)
-            y = np.clip(np.rint(uv[:, 1]).astype(int), 0, self.H - 1)
-            col = frame[np.arange(len(idx)), y, x]
         else:
-            col = r.colors[idx]
+            col = D.query_colors(self.frames, r.tracks_2d, r.query_frame, r.colors, idx)
         col = D.fade_to(col, np.full(len(idx), 0.8, np.float32))  # a little paler than the current frame
         self.static = self.server.scene.add_point_cloud(
             "/static", xyz, np.ascontiguousarray(col),
@@ -224,7 +218,7 @@ class Viewer:
         img = None if self.frames is None else self._thumb(t)
         self.current_cam = self.server.scene.add_camera_frustum(
             "/current_camera", fov=D.vertical_fov(r.intrinsics, self.H), aspect=self.W / self.H,
-            scale=0.15 * self.extent, color=tuple(int(v) for v in D.DYNAMIC_COLOR), image=img, format="jpeg",
+            scale=0.1 * self.extent, color=tuple(int(v) for v in D.DYNAMIC_COLOR), image=img, format="jpeg",
             wxyz=self._q[t], position=r.poses_c2w[t, :3, 3].astype(float), thickness=3.0,
             thickness_units="screen", visible=self.layers["cameras"].value)
 
