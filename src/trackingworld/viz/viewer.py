@@ -109,8 +109,9 @@ class Viewer:
         client.camera.up_direction = tuple(-P[:3, 1])
 
     # ---- drawing ---------------------------------------------------------------------------------------
-    def _k(self, k: int) -> int:
-        return max(1, int(round(k * float(self.density.value))))
+    def _k(self, cap: int, available: int) -> int:
+        """Points to draw: the density slider's fraction of what the cap lets through."""
+        return max(1, int(round(min(cap, available) * float(self.density.value))))
 
     def _size(self, drawn: int, total: int) -> float:
         return D.base_point_size(self.res.intrinsics, self.res.depth, drawn, total) * float(self.point_size.value)
@@ -122,7 +123,7 @@ class Viewer:
             self._cache.move_to_end(key)
             return self._cache[key]
         r = self.res
-        idx = D.frame_indices(r.visible, t, self.order, self._k(self.cfg.max_points))
+        idx = D.frame_indices(r.visible, t, self.order, self._k(self.cfg.max_points, int(r.visible[:, t].sum())))
         pts = r.tracks_3d[idx, t]
         depth = D.camera_depths(pts, r.poses_c2w[t]) if self.color_mode.value == "depth" else None
         col = D.point_colors(self.color_mode.value, idx, t, tracks_2d=r.tracks_2d, is_dynamic=r.is_dynamic,
@@ -176,7 +177,7 @@ class Viewer:
     def _draw_static(self) -> None:
         r = self.res
         idx, xyz = D.static_map(r.tracks_3d, r.query_frame, r.is_dynamic, self.order,
-                                self._k(self.cfg.max_static_points))
+                                self._k(self.cfg.max_static_points, int((~r.is_dynamic).sum())))
         if self.color_mode.value == "label":
             col = np.broadcast_to(D.STATIC_COLOR, (len(idx), 3))
         else:
