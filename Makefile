@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 TORCH_VERSION ?= 2.13.0
 DEMO_DIR ?= demo_out
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup browser demo test lint bench clean
 
 setup: $(VENV)/.installed
 
@@ -20,7 +20,17 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	$(BIN)/python -m trackingworld.demo --out $(DEMO_DIR)
 
-test: setup
+# Chromium and ChromeDriver for the viewer's browser test, from Debian's packages where this machine allows it
+# (root or password-less sudo); without them that one test skips.
+browser:
+	@command -v chromium >/dev/null && command -v chromedriver >/dev/null || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] && echo "" || echo "sudo -n" ); \
+	  command -v apt-get >/dev/null && \
+	  ( $$SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || \
+	    ( $$SUDO apt-get update -q >/dev/null 2>&1 && $$SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 ) ) \
+	  || echo "note: could not install chromium + chromium-driver; the browser test will skip"; }
+
+test: setup browser
 	$(BIN)/python -m pytest
 
 lint: setup

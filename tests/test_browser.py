@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+
 from exact_result import exact_result
 from test_viz import free_port
 

@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 import pytest
-from exact_result import write_exact_result
 
+from exact_result import write_exact_result
 from trackingworld.cli.main import main
 from trackingworld.geometry import invert_pose, project, transform
 from trackingworld.io.export import export

@@ -4,8 +4,8 @@ import socket
 
 import numpy as np
 import pytest
-from exact_result import exact_result, write_exact_result
 
+from exact_result import exact_result, write_exact_result
 from trackingworld.cli.main import main
 from trackingworld.geometry import default_intrinsics, look_at
 from trackingworld.viz import display as D

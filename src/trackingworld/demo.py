@@ -12,6 +12,7 @@ from trackingworld.config import InputConfig, RunConfig
 from trackingworld.eval.evaluate import evaluate_to_file, format_table
 from trackingworld.pipeline.run import DEFAULT_METHOD, METHODS, run
 from trackingworld.synth import render_and_write
+from trackingworld.viz.render import render as render_result
 
 
 def main(argv=None) -> int:
@@ -35,12 +36,22 @@ def main(argv=None) -> int:
         print(f"[demo] running --method {m}", file=sys.stderr)
         run(cfg, out / m)
         table[m] = evaluate_to_file(out / m, scene)
+    print(f"[demo] rendering videos and the camera path of --method {DEFAULT_METHOD}", file=sys.stderr)
+    renders = render_result(out / DEFAULT_METHOD, gt=scene, verbose=False)
     print()
     print(format_table(table))
     print(f"\n[demo] finished in {time.perf_counter() - t0:.0f} s")
     for m in methods:
         print(f"  {m}: {out / m / 'result.npz'} (metrics: {out / m / 'metrics.json'})")
     print(f"  scene and ground truth: {scene}")
+    print(f"  renders: {', '.join(str(p) for p in renders.values())}")
+    exe = Path(sys.executable).parent / "trackingworld"
+    try:
+        exe = exe.relative_to(Path.cwd())
+    except ValueError:
+        pass
+    print(f"\nOpen the result in the 3D viewer (then browse to http://127.0.0.1:8080):\n"
+          f"  {exe} view {out / DEFAULT_METHOD}")
     return 0
 
 
