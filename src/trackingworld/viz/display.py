@@ -104,7 +104,7 @@ def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, i
     rgb = sample_colors(frame, tracks_2d[idx, t]) if frame is not None else colors[idx]
     if mode == "video + dynamic tint":
         rgb = rgb.astype(np.float32)
-        rgb[dyn] = 0.45 * rgb[dyn] + 0.55 * DYNAMIC_COLOR
+        rgb[dyn] = 0.6 * rgb[dyn] + 0.4 * DYNAMIC_COLOR
         rgb = rgb.astype(np.uint8)
     return rgb
 
@@ -119,11 +119,13 @@ def trail_indices(is_dynamic: np.ndarray, visible: np.ndarray, order: np.ndarray
     return dyn[np.sort(keep)[:k]]
 
 
-def trail_segments(tracks_3d: np.ndarray, idx: np.ndarray, t: int, length: int) -> tuple[np.ndarray, np.ndarray]:
+def trail_segments(tracks_3d: np.ndarray, idx: np.ndarray, t: int, length: int,
+                   visible: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Line segments of the last ``length`` frames of tracks ``idx`` up to frame ``t``.
 
-    Returns (segments [M*L,2,3] world metres, fade [M*L] in (0,1], 1 at the newest segment), L = the number of
-    segments available (min(length, t))."""
+    With ``visible`` [N,T] only segments observed at both ends are kept (positions through occlusion are
+    estimates, and a trail should show what was seen). Returns (segments [S,2,3] world metres, fade [S] in
+    (0,1], 1 at the newest segment)."""
     t0 = max(0, t - length)
     if t - t0 < 1 or idx.size == 0:
         return np.zeros((0, 2, 3), np.float32), np.zeros(0, np.float32)
@@ -131,6 +133,10 @@ def trail_segments(tracks_3d: np.ndarray, idx: np.ndarray, t: int, length: int) 
     seg = np.stack([p[:, :-1], p[:, 1:]], axis=2).reshape(-1, 2, 3)
     L = t - t0
     fade = np.tile(np.arange(1, L + 1, dtype=np.float32) / L, idx.size)
+    if visible is not None:
+        v = visible[idx, t0:t + 1]
+        keep = (v[:, :-1] & v[:, 1:]).reshape(-1)
+        seg, fade = seg[keep], fade[keep]
     return seg.astype(np.float32), fade
 
 
@@ -146,21 +152,24 @@ def camera_depths(tracks_3d_t: np.ndarray, pose_c2w: np.ndarray) -> np.ndarray:
     return transform(invert_pose(pose_c2w.astype(np.float64)), tracks_3d_t.astype(np.float64))[:, 2]
 
 
-def scene_extent(poses_c2w: np.ndarray, depth: np.ndarray) -> float:
+def median_depth(depth: np.ndarray) -> float:
+    """Median of the valid depths [T,H,W] (metres), on every 4th pixel: a scale for sizing things on screen."""
+    d = depth[:, ::4, ::4]
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(np.median(d)) if d.size else 1.0
+
+
+def scene_extent(poses_c2w: np.ndarray, med_depth: float) -> float:
     """A length for sizing things on screen: the median scene depth (metres), never below the camera path's
     extent."""
-    d = depth[np.isfinite(depth) & (depth > 0)]
-    med = float(np.median(d)) if d.size else 1.0
     c = poses_c2w[:, :3, 3]
-    return max(med, float(np.linalg.norm(c.max(0) - c.min(0))), 1e-6)
+    return max(med_depth, float(np.linalg.norm(c.max(0) - c.min(0))), 1e-6)
 
 
-def base_point_size(K: np.ndarray, depth: np.ndarray, drawn: int, total: int) -> float:
+def base_point_size(fx: float, med_depth: float, drawn: int, total: int) -> float:
     """World point size (metres) that makes ``drawn`` of ``total`` points about cover the surface they sample:
     one pixel's footprint at the median depth, grown by sqrt of the subsampling factor."""
-    d = depth[np.isfinite(depth) & (depth > 0)]
-    med = float(np.median(d)) if d.size else 1.0
-    return 1.5 * med / float(K[0, 0]) * float(np.sqrt(max(total, 1) / max(drawn, 1)))
+    return 1.5 * med_depth / float(fx) * float(np.sqrt(max(total, 1) / max(drawn, 1)))
 
 
 def vertical_fov(K: np.ndarray, height: int) -> float:

@@ -110,14 +110,14 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
     scol = D.query_colors(frames, res.tracks_2d, res.query_frame, res.colors, sidx)
     dyn_idx = order[res.is_dynamic[order]]
     trail_idx = D.trail_indices(res.is_dynamic, res.visible, order, 300)
-    extent = D.scene_extent(res.poses_c2w, res.depth)
+    extent = D.scene_extent(res.poses_c2w, D.median_depth(res.depth))
     if cfg.view == "input":
         views, K = res.poses_c2w.astype(np.float64), res.intrinsics * s
         K[2, 2] = 1.0
     else:
         K = default_intrinsics(w, h, 60.0)
         target = np.median(sxyz, 0) if len(sxyz) else res.poses_c2w[0, :3, 3] + res.poses_c2w[0, :3, 2]
-        dist = 1.3 * float(np.linalg.norm(target - res.poses_c2w[0, :3, 3])) + 1e-6
+        dist = 2.0 * float(np.linalg.norm(target - res.poses_c2w[0, :3, 3])) + 1e-6
         views = (orbit_poses(res.poses_c2w, target, dist, T, cfg.swing_deg, cfg.elevation_deg)
                  if cfg.view == "orbit" else follow_poses(res.poses_c2w, 0.5 * extent, cfg.elevation_deg))
     radius = 1 if max(w, h) >= 480 else 0
@@ -127,15 +127,15 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
         di = dyn_idx[res.visible[dyn_idx, t]]
         if len(di):
             dcol = (D.sample_colors(frames[t], res.tracks_2d[di, t]) if frames is not None else res.colors[di])
-            dcol = (0.5 * dcol + 0.5 * D.DYNAMIC_COLOR).astype(np.uint8)
+            dcol = (0.6 * dcol + 0.4 * D.DYNAMIC_COLOR).astype(np.uint8)
             img = splat(res.tracks_3d[di, t], dcol, views[t], K, (w, h), radius=radius, image=img)
-        seg, fade = D.trail_segments(res.tracks_3d, trail_idx, t, cfg.tail)
+        seg, fade = D.trail_segments(res.tracks_3d, trail_idx, t, cfg.tail, res.visible)
         tc = D.fade_to(np.broadcast_to(D.DYNAMIC_COLOR, (len(fade), 3)), fade)
         for (a, b), c in zip(seg, tc, strict=True):
             draw_polyline(img, np.stack([a, b]), views[t], K, tuple(int(v) for v in c), 1)
         if cfg.view != "input":
             draw_polyline(img, centres[: t + 1], views[t], K, (40, 40, 40), 2)
-            for a, b in frustum_lines(res.poses_c2w[t], res.intrinsics, (W, H), 0.12 * extent):
+            for a, b in frustum_lines(res.poses_c2w[t], res.intrinsics, (W, H), 0.2 * extent):
                 draw_polyline(img, np.stack([a, b]), views[t], K, (230, 90, 10), 2)
         cv2.putText(img, f"frame {t}  ({cfg.view} view)", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (30, 30, 30), 1,
                     cv2.LINE_AA)

@@ -45,7 +45,8 @@ class Viewer:
         self.T = result.num_frames
         self.H, self.W = result.depth.shape[1:]
         self.order = D.display_order(result.num_tracks, self.cfg.seed)
-        self.extent = D.scene_extent(result.poses_c2w, result.depth)
+        self.med_depth = D.median_depth(result.depth)
+        self.extent = D.scene_extent(result.poses_c2w, self.med_depth)
         self.trail_idx = D.trail_indices(result.is_dynamic, result.visible, self.order, self.cfg.trail_tracks)
         self._cache: OrderedDict = OrderedDict()
         self._lock = threading.RLock()
@@ -114,7 +115,7 @@ class Viewer:
         return max(1, int(round(min(cap, available) * float(self.density.value))))
 
     def _size(self, drawn: int, total: int) -> float:
-        return D.base_point_size(self.res.intrinsics, self.res.depth, drawn, total) * float(self.point_size.value)
+        return D.base_point_size(self.res.intrinsics[0, 0], self.med_depth, drawn, total) * float(self.point_size.value)
 
     def frame_data(self, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(track indices, points [M,3], colours [M,3]) drawn for frame ``t`` with the current settings."""
@@ -189,7 +190,8 @@ class Viewer:
             visible=self.layers["static map"].value)
 
     def _draw_trails(self) -> None:
-        seg, fade = D.trail_segments(self.res.tracks_3d, self.trail_idx, self.t, int(self.trail_len.value))
+        seg, fade = D.trail_segments(self.res.tracks_3d, self.trail_idx, self.t, int(self.trail_len.value),
+                                     self.res.visible)
         if seg.shape[0] == 0:
             seg, fade = np.zeros((1, 2, 3), np.float32), np.zeros(1, np.float32)
         col = D.fade_to(np.broadcast_to(D.DYNAMIC_COLOR, (len(fade), 3)), fade)

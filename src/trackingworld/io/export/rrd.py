@@ -37,7 +37,7 @@ def write_rrd(res: Result, path: Path, frames: np.ndarray | None, order: np.ndar
                              colors=res.colors, frame=None if frames is None else frames[t])
         rec.log("world/points", rr.Points3D(res.tracks_3d[idx, t], colors=col))
         n_points += len(idx)
-        seg, _ = D.trail_segments(res.tracks_3d, trail_idx, t, 12)
+        seg, _ = D.trail_segments(res.tracks_3d, trail_idx, t, 12, res.visible)
         rec.log("world/dynamic_trails", rr.LineStrips3D(seg, colors=D.DYNAMIC_COLOR))
         P = res.poses_c2w[t]
         rec.log("world/camera", rr.Transform3D(translation=P[:3, 3], mat3x3=P[:3, :3]))
