@@ -246,3 +246,40 @@ def test_cache_recomputes_on_key_change_and_on_a_corrupt_file(tmp_path):
     path.write_bytes(b"PK\x03\x04 not a zip")
     assert (cached(path, {"k": 2}, compute, verbose=False)["a"] == np.arange(3)).all()
     assert len(calls) == 3
+
+
+def _tracks_of_points(fov: float, rotate_only: bool = False, seed: int = 0):
+    from trackingworld.geometry import default_intrinsics, invert_pose, look_at, project, transform
+    from trackingworld.tracking2d.base import TrackResult
+
+    rng = np.random.default_rng(seed)
+    W, H, T = 320, 240, 24
+    K = default_intrinsics(W, H, fov)
+    pts = np.c_[rng.uniform(-4, 4, 3000), rng.uniform(-3, 3, 3000), rng.uniform(3, 12, 3000)]
+    if rotate_only:
+        poses = np.stack([look_at(np.zeros(3), np.array([np.sin(t / 40), 0.0, np.cos(t / 40)])) for t in range(T)])
+    else:
+        poses = np.stack([look_at(np.array([0.08 * t, 0.02 * np.sin(t / 3), 0.03 * t]), np.array([0.5, 0, 8]))
+                          for t in range(T)])
+    uv, z = project(transform(invert_pose(poses)[None], pts[:, None]), K)
+    uv += rng.normal(0, 0.3, uv.shape)
+    vis = (z > 0) & (uv[..., 0] > 0) & (uv[..., 0] < W) & (uv[..., 1] > 0) & (uv[..., 1] < H)
+    return TrackResult(uv.astype(np.float32), vis, np.ones(vis.shape, np.float32), np.zeros((3000, 3), np.float32)), K
+
+
+@pytest.mark.parametrize("fov", [40.0, 90.0])
+def test_focal_self_calibration_recovers_the_field_of_view(fov):
+    from trackingworld.priors.focal import estimate_focal
+
+    tr, K = _tracks_of_points(fov)
+    f, info = estimate_focal(tr, np.ones(len(tr.tracks), bool), (320, 240))
+    assert f is not None and abs(f / K[0, 0] - 1) < 0.03, info
+    assert abs(info["fov_deg"] - fov) < 1.5
+
+
+def test_focal_self_calibration_declines_without_translation():
+    from trackingworld.priors.focal import estimate_focal
+
+    tr, _ = _tracks_of_points(50.0, rotate_only=True)
+    f, info = estimate_focal(tr, np.ones(len(tr.tracks), bool), (320, 240))
+    assert f is None and "reason" in info and info["skipped"]["homography"] > 0

@@ -19,7 +19,10 @@ class InputConfig:
     max_frames: int | None = None
     frame_stride: int = 1
     resize: int | None = None  # long side of the processing resolution (outputs stay at input size)
-    default_fov_deg: float = 60.0  # used when no intrinsics are given and the depth model has no focal length
+    # no intrinsics given and no focal length from the depth model: estimate the focal length from the static
+    # tracks (priors.focal), falling back to default_fov_deg when the video does not determine it
+    self_calibrate: bool = True
+    default_fov_deg: float = 60.0
     cache: bool = True  # keep tracks and computed priors in DIR/priors/ for re-runs
 
 

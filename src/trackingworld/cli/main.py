@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--frames", type=int, default=None)
     s.add_argument("--size", type=_size, default=None, help="WxH, e.g. 320x240")
+    s.add_argument("--fov", type=float, default=None, help="horizontal field of view, degrees (default 60)")
 
     r = sub.add_parser("run", help="world-centric dense 3D tracking of a video")
     r.add_argument("input", help="video file or folder of images")
@@ -41,7 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "or DETECTOR+SEGMENTER) | motion (default: motion the camera cannot explain) | none")
     g.add_argument("--mask-prompt", help="text prompt of a mask model, e.g. 'dog. person.'")
     g.add_argument("--intrinsics", help="FILE (3x3 or fx,fy,cx,cy) | inline fx,fy,cx,cy | auto (default: the depth "
-                   "model's focal length when it has one, else a 60 deg horizontal field of view)")
+                   "model's focal length when it has one, else self-calibrated from the video's static tracks, "
+                   "else --fov)")
+    g.add_argument("--fov", type=float, default=60.0,
+                   help="horizontal field of view (deg) assumed when nothing better is known (default 60)")
+    g.add_argument("--no-self-calibration", action="store_true",
+                   help="with --intrinsics auto, assume --fov instead of estimating the focal length from the video")
     g.add_argument("--no-cache", action="store_true",
                    help="do not keep tracks and computed priors in DIR/priors/ (by default a re-run reuses them)")
     r.add_argument("--method", default="trackingworld", choices=["trackingworld", "baseline"],
@@ -196,7 +202,7 @@ def _optim_config(a):
 def cmd_synth(a) -> int:
     from trackingworld.synth import render_and_write
 
-    out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size)
+    out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov)
     print(f"scene written to {out} (inputs in {out / 'input'}, ground truth in {out / 'gt.npz'})")
     return 0
 
@@ -209,7 +215,8 @@ def cmd_run(a) -> int:
         method=a.method, device=a.device,
         inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, mask_prompt=a.mask_prompt,
                            intrinsics=a.intrinsics, max_frames=a.max_frames, frame_stride=a.frame_stride,
-                           resize=a.resize, cache=not a.no_cache),
+                           resize=a.resize, cache=not a.no_cache, default_fov_deg=a.fov,
+                           self_calibrate=not a.no_self_calibration),
         track2d=_track_config(a), optim=_optim_config(a),
     )
     run(cfg, a.out, verbose=not a.quiet)

@@ -10,7 +10,9 @@ depth          FILE | model name / ``hf:ID`` / folder      ``sfm``: structure fr
 masks          DIR | FILE | ``grounded-sam`` /              ``motion``: motion the camera cannot explain
                ``DETECTOR+SEGMENTER`` | ``motion`` | none
 intrinsics     FILE | ``fx,fy,cx,cy``                      ``auto``: the depth model's focal length when it
-                                                           has one, else a 60 deg horizontal field of view
+                                                           has one, else self-calibrated from the static
+                                                           tracks (epipolar), else a 60 deg horizontal
+                                                           field of view
 =============  ==========================================  ==========================================
 
 Computed priors are cached in ``DIR/priors/`` with a key of everything they depend on.
@@ -34,6 +36,7 @@ from trackingworld.io.priors import fill_invalid_depth
 from trackingworld.pipeline.inputs import Inputs
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.priors.align import disparity_to_depth
+from trackingworld.priors.focal import estimate_focal
 from trackingworld.priors.mask_models import DEFAULT_PROMPT
 from trackingworld.priors.motion_masks import MotionMaskConfig, motion_masks
 from trackingworld.priors.sfm import SfMConfig, sfm_depth
@@ -48,6 +51,7 @@ class PriorInfo:
     intrinsics: str = ""
     messages: list[str] = field(default_factory=list)
     sfm: dict = field(default_factory=dict)
+    focal: dict = field(default_factory=dict)
 
 
 def _say(info: PriorInfo, msg: str, verbose: bool) -> None:
@@ -76,6 +80,33 @@ def tracks_key(cfg: RunConfig, w: int, h: int) -> dict:
             "tracks_file": file_identity(cfg.track2d.tracks_file)}
 
 
+def _intrinsics(inp: Inputs, tr: TrackResult, ic, K: np.ndarray, K_given: bool, pred, masks: np.ndarray,
+                info: PriorInfo, seed: int, verbose: bool) -> np.ndarray:
+    """K at the processing resolution: given; else a depth model's focal length; else self-calibrated from the
+    static tracks; else the assumed field of view."""
+    T, h, w = inp.frames.shape[:3]
+    if K_given:
+        info.intrinsics = f"given ({ic.intrinsics})"
+        return K
+    if pred is not None and pred.focal_px:
+        info.intrinsics = f"focal length {pred.focal_px:.1f} px from {ic.depth}"
+        K = intrinsics_matrix(pred.focal_px, pred.focal_px, (w - 1) / 2, (h - 1) / 2)
+    elif ic.self_calibrate:
+        f, finfo = estimate_focal(tr, static_tracks(tr, masks), (w, h), seed=seed)
+        info.focal = finfo
+        if f is not None:
+            K = intrinsics_matrix(f, f, (w - 1) / 2, (h - 1) / 2)
+            info.intrinsics = (f"self-calibrated from the video: focal {f:.1f} px at {w}x{h} "
+                               f"({finfo['fov_deg']:.1f} deg horizontal field of view, {finfo['pairs']} frame pairs)")
+        else:
+            info.intrinsics = (f"assumed: {ic.default_fov_deg:.0f} deg horizontal field of view "
+                               f"(self-calibration found nothing: {finfo['reason']})")
+    else:
+        info.intrinsics = f"assumed: {ic.default_fov_deg:.0f} deg horizontal field of view"
+    _say(info, f"intrinsics {info.intrinsics}", verbose)
+    return K
+
+
 def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path | None,
                    verbose: bool = True) -> tuple[Inputs, PriorInfo]:
     """Fill in the priors ``inp`` lacks (depth, masks, intrinsics) at the processing resolution."""
@@ -101,16 +132,6 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         key = {**base_key, "model": file_identity(ic.depth)}  # a local folder by its files, a hub id by name
         z = cached(path("depth_model"), key, run_model, "depth model", verbose)
         pred = DepthPrediction(z["values"], str(z["kind"]), None if np.isnan(z["focal"]) else float(z["focal"]))
-    if K_given:
-        info.intrinsics = f"given ({ic.intrinsics})"
-    elif pred is not None and pred.focal_px:
-        K = intrinsics_matrix(pred.focal_px, pred.focal_px, (w - 1) / 2, (h - 1) / 2)
-        info.intrinsics = f"focal length {pred.focal_px:.1f} px from {ic.depth}"
-    else:
-        info.intrinsics = f"assumed: {ic.default_fov_deg:.0f} deg horizontal field of view"
-    if not K_given:
-        _say(info, f"intrinsics {info.intrinsics}", verbose)
-
     msrc = mask_source(ic.masks)
     masks = inp.masks
     if msrc == "model":
@@ -134,6 +155,8 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         info.masks = "none"
     else:
         info.masks = f"file {ic.masks}"
+
+    K = _intrinsics(inp, tr, ic, K, K_given, pred, masks, info, cfg.seed, verbose)
 
     depth = inp.depth
     need_sfm = dsrc == "sfm" or (pred is not None and pred.kind == "disparity")

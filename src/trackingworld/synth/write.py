@@ -75,9 +75,11 @@ def sample_queries(scene: Scene, inst: np.ndarray, moving_ids: np.ndarray, rng) 
 
 def render_and_write(out: str | os.PathLike, preset: str = "default", seed: int = 0,
                      frames: int | None = None, size: tuple[int, int] | None = None,
-                     verbose: bool = True) -> Path:
+                     verbose: bool = True, fov_deg: float | None = None) -> Path:
     """Render a scene and write inputs + ground truth to ``out``. Returns ``out``."""
     overrides = {}
+    if fov_deg:
+        overrides["fov_deg"] = float(fov_deg)
     if frames:
         overrides["frames"] = int(frames)
     if size:
