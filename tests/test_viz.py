@@ -78,6 +78,12 @@ def test_render_writes_videos_and_plot_that_are_not_blank(tmp_path):
     assert np.abs(v3d[0].astype(int) - v3d[-1]).mean() > 1  # the view orbits and the cube moves
     png = np.asarray(Image.open(out / "camera_path.png"))
     assert png.shape[0] > 200 and png.std() > 5
+    # a fixed viewpoint: the static wall stays put, only the mover and the drawn camera change
+    assert main(["render", str(tmp_path), "--quiet", "--only", "scene", "--view", "fixed", "--eye", "0,-1,-3"]) == 0
+    fixed = iio.imread(out / "scene_3d.mp4", plugin="pyav").astype(int)
+    top = slice(0, fixed.shape[1] // 3)  # the upper wall, away from the cube and the camera
+    assert np.abs(fixed[0, top] - fixed[-1, top]).mean() < np.abs(v3d[0, top].astype(int) - v3d[-1, top]).mean()
+    assert main(["render", str(tmp_path), "--quiet", "--view", "fixed"]) == 2  # --eye missing: one-line error
 
 
 def test_camera_path_plot_against_ground_truth(tmp_path):

@@ -18,6 +18,14 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"size must look like 320x240, got {text!r}") from e
 
 
+def _xyz(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+        return x, y, z
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z, got {text!r}") from e
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="trackingworld", description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -93,7 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--color-by", default=d.color_by, choices=["depth", "label"], help="colour of the 2D tracks")
     n.add_argument("--view", default=d.view, choices=VIEWS,
                    help="viewpoint of scene_3d.mp4: orbit (swings about the scene), follow (behind and above the "
-                        "camera) or input (the estimated camera itself)")
+                        "camera), input (the estimated camera itself) or fixed (--eye, --target)")
+    n.add_argument("--eye", type=_xyz, help="fixed view: world position X,Y,Z of the viewpoint (metres)")
+    n.add_argument("--target", type=_xyz, help="fixed view: world point X,Y,Z looked at (default: the scene's "
+                   "median static point)")
     n.add_argument("--swing", type=float, default=d.swing_deg, help="orbit swing, degrees either side")
     n.add_argument("--elevation", type=float, default=d.elevation_deg, help="orbit/follow elevation, degrees")
     n.add_argument("--max-tracks", type=int, default=d.max_tracks, help="2D tracks drawn per frame (about)")
@@ -246,8 +257,11 @@ def cmd_view(a) -> int:
 def cmd_render(a) -> int:
     from trackingworld.viz.render import RenderConfig, render
 
-    cfg = RenderConfig(color_by=a.color_by, view=a.view, swing_deg=a.swing, elevation_deg=a.elevation,
-                       max_tracks=a.max_tracks, max_points=a.max_points, fps=a.fps)
+    if a.view == "fixed" and a.eye is None:
+        raise InputError("--view fixed needs --eye X,Y,Z (world metres; the first camera is at "
+                         "poses_tum.txt's first line)")
+    cfg = RenderConfig(color_by=a.color_by, view=a.view, eye=a.eye, target=a.target, swing_deg=a.swing,
+                       elevation_deg=a.elevation, max_tracks=a.max_tracks, max_points=a.max_points, fps=a.fps)
     out = render(a.dir, cfg, gt=a.gt, video=a.video, what=tuple(a.only), verbose=not a.quiet)
     for p in out.values():
         print(p)

@@ -29,7 +29,8 @@ class FocalConfig:
     min_tracks: int = 50
     fov_range_deg: tuple[float, float] = (15.0, 130.0)  # horizontal field of view searched
     grid: int = 240
-    min_parallax_px: float = 2.0  # median displacement a homography cannot explain
+    min_parallax_px: float = 2.0  # displacement a homography cannot explain, at the percentile below
+    parallax_percentile: float = 90.0  # (a wall or floor filling the view lets a homography explain the median)
     homography_ratio: float = 0.9  # skip a pair when H's inliers >= this x F's
     max_depth_ratio: float = 0.6  # the minimum must be below this x the cost's median: else "no clear minimum"
 
@@ -80,7 +81,7 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
                 skipped["homography"] += 1
                 continue
             resid = np.linalg.norm(cv2.perspectiveTransform(pa[None], Hm)[0] - pb, axis=1)
-            if np.median(resid) < cfg.min_parallax_px:
+            if np.percentile(resid, cfg.parallax_percentile) < cfg.min_parallax_px:
                 skipped["parallax"] += 1
                 continue
         c = essential_cost(F, focals, cx, cy)

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from trackingworld.geometry import default_intrinsics
+from trackingworld.geometry import default_intrinsics, look_at
 from trackingworld.io.atomic import atomic_path
 from trackingworld.io.frames import frames_for_result
 from trackingworld.io.result import Result, load_result
@@ -27,7 +27,7 @@ from trackingworld.viz.plots import plot_camera_path
 from trackingworld.viz.splat import draw_polyline, follow_poses, frustum_lines, orbit_poses, splat
 
 RENDER_DIR = "render"
-VIEWS = ("orbit", "follow", "input")
+VIEWS = ("orbit", "follow", "input", "fixed")
 
 
 @dataclass
@@ -35,7 +35,9 @@ class RenderConfig:
     color_by: str = "depth"  # tracks_2d.mp4: depth | label
     max_tracks: int = 600  # tracks drawn per frame in tracks_2d.mp4 (about)
     tail: int = 8  # frames of a 2D tail
-    view: str = "orbit"  # scene_3d.mp4 viewpoint: orbit | follow | input
+    view: str = "orbit"  # scene_3d.mp4 viewpoint: orbit | follow | input | fixed (at eye, looking at target)
+    eye: tuple[float, float, float] | None = None  # fixed: world position of the viewpoint (metres)
+    target: tuple[float, float, float] | None = None  # fixed: point looked at (default: the static map's median)
     swing_deg: float = 30.0  # orbit: swing about the world up
     elevation_deg: float = 20.0
     max_points: int = 200_000  # static map points in scene_3d.mp4
@@ -118,8 +120,16 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
         K = default_intrinsics(w, h, 60.0)
         target = np.median(sxyz, 0) if len(sxyz) else res.poses_c2w[0, :3, 3] + res.poses_c2w[0, :3, 2]
         dist = 2.0 * float(np.linalg.norm(target - res.poses_c2w[0, :3, 3])) + 1e-6
-        views = (orbit_poses(res.poses_c2w, target, dist, T, cfg.swing_deg, cfg.elevation_deg)
-                 if cfg.view == "orbit" else follow_poses(res.poses_c2w, 0.5 * extent, cfg.elevation_deg))
+        if cfg.view == "orbit":
+            views = orbit_poses(res.poses_c2w, target, dist, T, cfg.swing_deg, cfg.elevation_deg)
+        elif cfg.view == "follow":
+            views = follow_poses(res.poses_c2w, 0.5 * extent, cfg.elevation_deg)
+        else:
+            if cfg.eye is None:
+                raise ValueError("view 'fixed' needs an eye position (--eye X,Y,Z)")
+            look = np.asarray(cfg.target if cfg.target is not None else target, np.float64)
+            up = -res.poses_c2w[0, :3, 1].astype(np.float64)
+            views = np.repeat(look_at(np.asarray(cfg.eye, np.float64), look, up=up)[None], T, axis=0)
     radius = 1 if max(w, h) >= 480 else 0
     centres = res.poses_c2w[:, :3, 3]
     for t in range(T):
