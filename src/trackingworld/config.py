@@ -28,7 +28,8 @@ class InputConfig:
 
 @dataclass
 class Track2DConfig:
-    tracker: str = "flow"  # flow (weight-free) | file (precomputed, see tracks_file)
+    tracker: str = "flow"  # flow (weight-free) | cotracker3 (learned, see cotracker) | file (see tracks_file)
+    cotracker: str = "cotracker3"  # cotracker3 (torch hub) | hub:REPO_OR_DIR[:ENTRY] | checkpoint .pth
     tracks_file: str | None = None  # CoTracker / TAPNet layout .npz, see trackingworld.io.tracks
     grid_stride: int = 4  # s in the paper (Sec. 3.2)
     query_stride: int = 1  # every frame is a query frame (the authors' code: 10)

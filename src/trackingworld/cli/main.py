@@ -133,6 +133,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _track_args(p) -> None:
     g = p.add_argument_group("2D tracking")
     g.add_argument("--tracks", help="precomputed tracks .npz (CoTracker or TAPNet layout) instead of tracking")
+    g.add_argument("--tracker", default="flow", choices=["flow", "cotracker3"],
+                   help="sparse tracker under the dense machinery: flow (weight-free, default) or cotracker3")
+    g.add_argument("--cotracker", default="cotracker3",
+                   help="cotracker3 (torch hub, downloads once) | hub:REPO_OR_DIR[:ENTRY] | a .pth checkpoint")
     g.add_argument("--grid-stride", type=int, default=4, help="stride s of the tracked grid (px)")
     g.add_argument("--query-stride", type=int, default=1, help="track from every k-th frame (authors: 10)")
     g.add_argument("--first-frame-only", action="store_true", help="ablation: no tracking every frame")
@@ -147,7 +151,8 @@ def _track_config(a):
     from trackingworld.config import Track2DConfig
 
     return Track2DConfig(
-        tracker="file" if a.tracks else "flow", tracks_file=a.tracks, grid_stride=a.grid_stride,
+        tracker="file" if a.tracks else a.tracker, cotracker=a.cotracker, tracks_file=a.tracks,
+        grid_stride=a.grid_stride,
         query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
         min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset)
 

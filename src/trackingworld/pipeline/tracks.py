@@ -14,10 +14,14 @@ from trackingworld.tracking2d.flow_tracker import FlowTracker, FlowTrackerConfig
 from trackingworld.tracking2d.upsample import UpsampleConfig
 
 
-def make_tracker(cfg: Track2DConfig, verbose: bool = True):
+def make_tracker(cfg: Track2DConfig, verbose: bool = True, device: str = "cpu"):
     if cfg.tracker == "flow":
         return FlowTracker(FlowTrackerConfig(preset=cfg.flow_preset, verbose=verbose))
-    raise InputError(f"unknown tracker {cfg.tracker!r} (available: flow, file)")
+    if cfg.tracker == "cotracker3":
+        from trackingworld.tracking2d.cotracker import CoTrackerConfig, CoTrackerTracker
+
+        return CoTrackerTracker.from_spec(CoTrackerConfig(spec=cfg.cotracker, device=device, verbose=verbose))
+    raise InputError(f"unknown tracker {cfg.tracker!r} (available: flow, cotracker3, file)")
 
 
 def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = None, device: str = "cpu",
@@ -29,7 +33,7 @@ def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = N
 
         res = load_tracks(cfg.tracks_file, frames.shape[0])
     else:
-        dense = DenseTracker(make_tracker(cfg, verbose), DenseConfig(
+        dense = DenseTracker(make_tracker(cfg, verbose, device), DenseConfig(
             stride=cfg.grid_stride, query_stride=cfg.query_stride, first_frame_only=cfg.first_frame_only,
             cover_radius=cfg.cover_radius, min_component=cfg.min_component, mode=cfg.dense_mode,
             upsample=UpsampleConfig(mode=cfg.upsampler), device=device, verbose=verbose))
