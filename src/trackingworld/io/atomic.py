@@ -69,10 +69,20 @@ def write_json(path: str | os.PathLike, obj) -> None:
     write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
 
 
+NPZ_COMPRESSLEVEL = 1  # deflate level: float arrays barely compress further, and level 6 costs ~4x the time
+
+
 def write_npz(path: str | os.PathLike, compress: bool = True, **arrays) -> None:
+    """An ``.npz`` that ``np.load`` reads, written atomically; deflate at a low level when ``compress``."""
+    import zipfile
+
+    mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            (np.savez_compressed if compress else np.savez)(f, **arrays)
+        with zipfile.ZipFile(tmp, "w", compression=mode, compresslevel=NPZ_COMPRESSLEVEL if compress else None,
+                             allowZip64=True) as zf:
+            for key, value in arrays.items():
+                with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
 def _json_default(o):

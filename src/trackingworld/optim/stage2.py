@@ -150,7 +150,9 @@ def closed_form_offsets(R, t, X, p: BAProblem) -> torch.Tensor:
     return (R[p.fr].transpose(-1, -2) @ dY[..., None])[..., 0]
 
 
-def _linearize(R, t, X, p: BAProblem):
+def _linearize(R, t, X, p: BAProblem, points_only: bool = False):
+    """Gauss-Newton blocks (Hcc, Hxx, Hcx, gc, gx) of the IRLS-weighted problem; with ``points_only`` the pose
+    blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs."""
     Y, r_uv, r_d = residuals(R, t, X, p)
     M = Y.shape[0]
     w_uv = torch.ones_like(r_d)
@@ -164,10 +166,15 @@ def _linearize(R, t, X, p: BAProblem):
     ez[..., 2] = 1.0 / p.depth_scale(Y[:, 2])[:, None]
     JY = torch.cat([lie.project_jacobian(Y, p.K), ez], 1)  # [M,3,3]
     r = torch.cat([r_uv, r_d[:, None]], 1)
-    Jc = JY @ lie.pose_jacobian(Y)  # [M,3,6]
     Jx = JY @ R[p.fr]  # [M,3,3]
-    WJc, WJx = W[..., None] * Jc, W[..., None] * Jx
+    WJx = W[..., None] * Jx
     T, N = p.n_frames, p.n_points
+    if points_only:
+        Hxx = torch.zeros(N, 3, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, Jx.transpose(1, 2) @ WJx)
+        gx = torch.zeros(N, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, _mv(WJx, r))
+        return None, Hxx, None, None, gx
+    Jc = JY @ lie.pose_jacobian(Y)  # [M,3,6]
+    WJc = W[..., None] * Jc
     Hcc = torch.zeros(T, 6, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, Jc.transpose(1, 2) @ WJc)
     Hxx = torch.zeros(N, 3, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, Jx.transpose(1, 2) @ WJx)
     Hcx = Jc.transpose(1, 2) @ WJx  # [M,6,3]
@@ -304,7 +311,7 @@ def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
     X = init_points(R, t, p)
     eye = torch.eye(3, dtype=X.dtype, device=X.device)
     for _ in range(iters):
-        _, Hxx, _, _, gx = _linearize(R, t, X, p)
+        _, Hxx, _, _, gx = _linearize(R, t, X, p, points_only=True)
         scale = torch.diagonal(Hxx, dim1=1, dim2=2).amax(-1).clamp_min(1e-30)[:, None, None]
         X = X - torch.linalg.solve(Hxx + 1e-6 * scale * eye, gx[..., None])[..., 0]
     return X
