@@ -35,6 +35,8 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     r = load_result(out)
     assert r.depth.shape == (6, 96, 128)
     assert r.tracks_2d[..., 0].max() > 100  # pixel coordinates at the input resolution
+    rep = json.loads((out / "optim.json").read_text())  # what the optimiser found, per stage
+    assert rep["stage2"]["loss"] <= rep["stage2"]["loss_init"] and "loss" in rep["stage1"]
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -16,7 +16,8 @@ from trackingworld.pipeline.lift import lift_camera_frame, sample_maps
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
 
-def run_baseline(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None) -> Result:
+def run_baseline(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
+                 report: dict | None = None) -> Result:
     T, h, w = inp.frames.shape[:3]
     W, H = inp.size_in
     depth = inp.depth if inp.depth is not None else np.ones((T, h, w), np.float32)

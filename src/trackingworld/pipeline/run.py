@@ -62,12 +62,15 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     t1 = time.perf_counter()
     inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose)
     timings["priors"] = time.perf_counter() - t1
-    result = METHODS[cfg.method](inp, tr, cfg, timings)
+    report: dict = {}
+    result = METHODS[cfg.method](inp, tr, cfg, timings, report)
     timings["total"] = time.perf_counter() - t0
     save_result(out_dir, result)
     write_json(out_dir / CONFIG_FILE, cfg.to_dict())
     write_json(out_dir / "priors.json", pinfo.__dict__)
     write_json(out_dir / "timings.json", timings)
+    if report:
+        write_json(out_dir / "optim.json", report)
     if verbose:
         print(f"[run] {result.num_tracks} tracks x {result.num_frames} frames written to {out_dir} "
               f"in {timings['total']:.1f} s", file=sys.stderr)

@@ -212,12 +212,16 @@ def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype,
     return hold_invisible(out, vis)
 
 
-def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None) -> Result:
-    """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`."""
+def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
+                      report: dict | None = None) -> Result:
+    """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`. ``report``
+    receives what the optimiser found (stage losses, counts), as written to ``DIR/optim.json``."""
     timings = {} if timings is None else timings
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
     out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed)
+    if report is not None:
+        report.update(out["info"])
     W, H = inp.size_in
     qt = tr.queries[:, 0].astype(np.int32)
     depth = resize_stack(out["depth"].astype(np.float32), W, H, cv2.INTER_LINEAR)
