@@ -84,6 +84,7 @@ def test_render_writes_videos_and_plot_that_are_not_blank(tmp_path):
     top = slice(0, fixed.shape[1] // 3)  # the upper wall, away from the cube and the camera
     assert np.abs(fixed[0, top] - fixed[-1, top]).mean() < np.abs(v3d[0, top].astype(int) - v3d[-1, top]).mean()
     assert main(["render", str(tmp_path), "--quiet", "--view", "fixed"]) == 2  # --eye missing: one-line error
+    assert main(["view", str(tmp_path / "missing")]) == 2  # no result there: one-line error, no server started
 
 
 def test_camera_path_plot_against_ground_truth(tmp_path):

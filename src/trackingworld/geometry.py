@@ -37,6 +37,13 @@ def unproject(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x * depth, y * depth, depth], axis=-1)
 
 
+def nearest_pixel(uv: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer (x [M], y [M]) of the pixel nearest to ``uv`` [M,2], clamped to a W x H image."""
+    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
+    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    return x, y
+
+
 def project(xyz_cam: np.ndarray, K: np.ndarray, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """Camera points ``[...,3]`` -> (pixels ``[...,2]``, depth ``[...]``). Depth is clamped at ``eps``
     for the division only, so points behind the camera give finite pixels."""

@@ -262,9 +262,6 @@ def cmd_view(a) -> int:
 def cmd_render(a) -> int:
     from trackingworld.viz.render import RenderConfig, render
 
-    if a.view == "fixed" and a.eye is None:
-        raise InputError("--view fixed needs --eye X,Y,Z (world metres; the first camera is at "
-                         "poses_tum.txt's first line)")
     cfg = RenderConfig(color_by=a.color_by, view=a.view, eye=a.eye, target=a.target, swing_deg=a.swing,
                        elevation_deg=a.elevation, max_tracks=a.max_tracks, max_points=a.max_points, fps=a.fps)
     out = render(a.dir, cfg, gt=a.gt, video=a.video, what=tuple(a.only), verbose=not a.quiet)

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from trackingworld.config import RunConfig
+from trackingworld.geometry import nearest_pixel
 from trackingworld.io.result import Result
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import lift_camera_frame, sample_maps
@@ -36,8 +37,5 @@ def run_baseline(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | N
 
 def sample_colors(frames: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """RGB ``[N,3]`` uint8 at the (rounded) query pixels."""
-    T, H, W = frames.shape[:3]
-    t = queries[:, 0].astype(int)
-    x = queries[:, 1].round().astype(int).clip(0, W - 1)
-    y = queries[:, 2].round().astype(int).clip(0, H - 1)
-    return frames[t, y, x]
+    x, y = nearest_pixel(queries[:, 1:3], frames.shape[2], frames.shape[1])
+    return frames[queries[:, 0].astype(int), y, x]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from trackingworld.priors.motion_masks import partner_frame
+from trackingworld.priors.motion_masks import fit_two_view, partner_frame
 from trackingworld.tracking2d.base import TrackResult
 
 
@@ -70,13 +70,13 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
             both = rng.choice(both, cfg.max_tracks, replace=False)
         pa = tr.tracks[both, a].astype(np.float64)
         pb = tr.tracks[both, b].astype(np.float64)
-        F, inl_f = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, 1.0, 0.999, 2000)
-        Hm, inl_h = cv2.findHomography(pa, pb, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
-        if F is None or F.shape != (3, 3) or inl_f is None:
+        fits = fit_two_view(pa, pb)
+        if fits is None or fits[0] is None:
             skipped["fit"] += 1
             continue
+        F, inl_f, Hm, inl_h = fits
         n_f = int(inl_f.sum())
-        if Hm is not None and inl_h is not None:
+        if Hm is not None:
             if int(inl_h.sum()) >= cfg.homography_ratio * n_f:
                 skipped["homography"] += 1
                 continue

@@ -40,23 +40,38 @@ class MotionMaskConfig:
     verbose: bool = True
 
 
-def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: MotionMaskConfig):
-    """Residuals [M] (px) of correspondences ``pa -> pb [M,2]`` under the camera's motion fitted on ``fit``, and
-    the residual threshold (px). None when the fit fails."""
-    a, b = pa[fit].astype(np.float64), pb[fit].astype(np.float64)
-    try:  # OpenCV raises on degenerate samples (e.g. no motion at all)
+def fit_two_view(a: np.ndarray, b: np.ndarray):
+    """Robust fundamental matrix and homography (USAC-MAGSAC) of correspondences ``a -> b [M,2]`` pixels.
+
+    Returns (F [3,3] or None, F inlier mask [M] bool, H [3,3] or None, H inlier mask [M] bool); None when OpenCV
+    rejects the sample (it raises on degenerate ones, e.g. no motion at all)."""
+    a, b = a.astype(np.float64), b.astype(np.float64)
+    try:
         F, inl_f = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, 1.0, 0.999, 2000)
         Hm, inl_h = cv2.findHomography(a, b, cv2.USAC_MAGSAC, 1.5, maxIters=2000, confidence=0.999)
     except cv2.error:
         return None
-    n_f = 0 if F is None or F.shape != (3, 3) else int(inl_f.sum())
-    n_h = 0 if Hm is None else int(inl_h.sum())
+    if F is None or F.shape != (3, 3) or inl_f is None:
+        F, inl_f = None, np.zeros(len(a), bool)
+    if Hm is None or inl_h is None:
+        Hm, inl_h = None, np.zeros(len(a), bool)
+    return F, inl_f.ravel() > 0, Hm, inl_h.ravel() > 0
+
+
+def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: MotionMaskConfig):
+    """Residuals [M] (px) of correspondences ``pa -> pb [M,2]`` under the camera's motion fitted on ``fit``, and
+    the residual threshold (px). None when the fit fails."""
+    fits = fit_two_view(pa[fit], pb[fit])
+    if fits is None:
+        return None
+    F, inl_f, Hm, inl_h = fits
+    n_f, n_h = int(inl_f.sum()), int(inl_h.sum())
     if n_f == 0 and n_h == 0:
         return None
     if n_h >= cfg.homography_ratio * n_f:
         q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
         r = np.linalg.norm(q - pb, axis=1)  # transfer error, px
-        inl = inl_h.ravel() > 0
+        inl = inl_h
     else:
         ha = np.concatenate([pa, np.ones((len(pa), 1))], 1)
         hb = np.concatenate([pb, np.ones((len(pb), 1))], 1)
@@ -64,7 +79,7 @@ def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: Motion
         num = np.abs((hb * Fa).sum(1))
         den = np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2)
         r = num / np.maximum(den, 1e-12)  # Sampson distance, px
-        inl = inl_f.ravel() > 0
+        inl = inl_f
     sigma = 1.4826 * np.median(r[fit][inl]) if inl.any() else cfg.min_px
     return r, max(cfg.min_px, cfg.noise_mult * sigma)
 

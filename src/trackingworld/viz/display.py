@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackingworld.geometry import invert_pose, transform
+from trackingworld.geometry import invert_pose, nearest_pixel, transform
 
 STATIC_COLOR = np.array([120, 150, 190], np.uint8)  # label colours: static blue-grey
 DYNAMIC_COLOR = np.array([255, 110, 20], np.uint8)  # dynamic orange
@@ -55,9 +55,7 @@ def static_map(tracks_3d: np.ndarray, query_frame: np.ndarray, is_dynamic: np.nd
 
 def sample_colors(frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """RGB [M,3] uint8 of ``frame`` [H,W,3] at the nearest pixel of ``uv`` [M,2] (clamped to the image)."""
-    H, W = frame.shape[:2]
-    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
-    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    x, y = nearest_pixel(uv, frame.shape[1], frame.shape[0])
     return frame[y, x]
 
 
@@ -67,11 +65,8 @@ def query_colors(frames: np.ndarray | None, tracks_2d: np.ndarray, query_frame: 
     result's own ``colors`` [N,3]."""
     if frames is None:
         return colors[idx]
-    H, W = frames.shape[1:3]
     qf = query_frame[idx]
-    uv = tracks_2d[idx, qf]
-    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
-    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    x, y = nearest_pixel(tracks_2d[idx, qf], frames.shape[2], frames.shape[1])
     return frames[qf, y, x]
 
 
@@ -107,6 +102,19 @@ def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, i
         rgb[dyn] = 0.6 * rgb[dyn] + 0.4 * DYNAMIC_COLOR
         rgb = rgb.astype(np.uint8)
     return rgb
+
+
+def frame_points(res, t: int, order: np.ndarray, k: int, mode: str, frame: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What is drawn of frame ``t`` of a :class:`~trackingworld.io.result.Result`: up to ``k`` visible tracks
+    (nested prefix of ``order``), (indices [M], world points [M,3], colours [M,3] in ``mode``; ``frame``
+    [H,W,3] is that frame of the video, when there is one)."""
+    idx = frame_indices(res.visible, t, order, k)
+    pts = res.tracks_3d[idx, t]
+    depth = camera_depths(pts, res.poses_c2w[t]) if mode == "depth" else None
+    col = point_colors(mode, idx, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic, colors=res.colors,
+                       frame=frame, depth=depth)
+    return idx, pts, col
 
 
 def trail_indices(is_dynamic: np.ndarray, visible: np.ndarray, order: np.ndarray, k: int) -> np.ndarray:
@@ -145,6 +153,11 @@ def fade_to(colors: np.ndarray, fade: np.ndarray, background=(255, 255, 255)) ->
     bg = np.asarray(background, np.float32)
     out = bg + (colors.astype(np.float32) - bg) * fade[:, None]
     return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def trail_colors(fade: np.ndarray) -> np.ndarray:
+    """Colours [S,3] uint8 of trail segments: the dynamic colour fading to white as ``fade`` [S] goes to 0."""
+    return fade_to(np.broadcast_to(DYNAMIC_COLOR, (len(fade), 3)), fade)
 
 
 def camera_depths(tracks_3d_t: np.ndarray, pose_c2w: np.ndarray) -> np.ndarray:

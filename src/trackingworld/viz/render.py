@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from trackingworld.errors import InputError
 from trackingworld.geometry import default_intrinsics, look_at
 from trackingworld.io.atomic import atomic_path
 from trackingworld.io.frames import frames_for_result
@@ -45,6 +46,16 @@ class RenderConfig:
     fps: float = 10.0
     seed: int = 0
 
+    def validate(self) -> None:
+        """One-line errors for settings that cannot render."""
+        if self.color_by not in ("depth", "label"):
+            raise InputError(f"--color-by must be depth or label, got {self.color_by!r}")
+        if self.view not in VIEWS:
+            raise InputError(f"--view must be one of {', '.join(VIEWS)}, got {self.view!r}")
+        if self.view == "fixed" and self.eye is None:
+            raise InputError("--view fixed needs --eye X,Y,Z (world metres; the first camera is at "
+                             "poses_tum.txt's first line)")
+
 
 def write_video(path: str | os.PathLike, frames, fps: float) -> None:
     """Write RGB frames (an iterable of [H,W,3] uint8, even sizes) as H.264 mp4, atomically."""
@@ -71,18 +82,17 @@ def _track_subset(visible: np.ndarray, order: np.ndarray, per_frame: int) -> np.
 
 def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
     """Yield the overlay frames [H,W,3] uint8 of ``tracks_2d.mp4``."""
+    cfg.validate()
     order = D.display_order(res.num_tracks, cfg.seed)
     idx = _track_subset(res.visible, order, cfg.max_tracks)
     uv = res.tracks_2d[idx]
     vis = res.visible[idx]
     if cfg.color_by == "label":
         col = np.where(res.is_dynamic[idx, None], D.DYNAMIC_COLOR, D.STATIC_COLOR)[:, None].repeat(res.num_frames, 1)
-    elif cfg.color_by == "depth":
+    else:  # depth
         z = np.stack([D.camera_depths(res.tracks_3d[idx, t], res.poses_c2w[t]) for t in range(res.num_frames)], 1)
         zs = z[vis] if vis.any() else z.ravel()
         col = D.depth_colors(z.ravel(), np.percentile(zs, 2), np.percentile(zs, 98)).reshape(len(idx), -1, 3)
-    else:
-        raise ValueError(f"color_by must be depth or label, got {cfg.color_by!r}")
     for t in range(res.num_frames):
         img = np.ascontiguousarray(frames[t])
         img = (0.7 * img).astype(np.uint8)  # darken so that the tracks stand out
@@ -101,8 +111,7 @@ def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
 
 def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig):
     """Yield the frames [h,w,3] uint8 of ``scene_3d.mp4``."""
-    if cfg.view not in VIEWS:
-        raise ValueError(f"view must be one of {', '.join(VIEWS)}, got {cfg.view!r}")
+    cfg.validate()
     T = res.num_frames
     H, W = res.depth.shape[1:]
     s = min(1.0, cfg.long_side / max(W, H))
@@ -125,8 +134,6 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
         elif cfg.view == "follow":
             views = follow_poses(res.poses_c2w, 0.5 * extent, cfg.elevation_deg)
         else:
-            if cfg.eye is None:
-                raise ValueError("view 'fixed' needs an eye position (--eye X,Y,Z)")
             look = np.asarray(cfg.target if cfg.target is not None else target, np.float64)
             up = -res.poses_c2w[0, :3, 1].astype(np.float64)
             views = np.repeat(look_at(np.asarray(cfg.eye, np.float64), look, up=up)[None], T, axis=0)
@@ -136,11 +143,11 @@ def scene_video_frames(res: Result, frames: np.ndarray | None, cfg: RenderConfig
         img = splat(sxyz, scol, views[t], K, (w, h), radius=radius)
         di = dyn_idx[res.visible[dyn_idx, t]]
         if len(di):
-            dcol = (D.sample_colors(frames[t], res.tracks_2d[di, t]) if frames is not None else res.colors[di])
-            dcol = (0.6 * dcol + 0.4 * D.DYNAMIC_COLOR).astype(np.uint8)
+            dcol = D.point_colors("video + dynamic tint", di, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic,
+                                  colors=res.colors, frame=None if frames is None else frames[t])
             img = splat(res.tracks_3d[di, t], dcol, views[t], K, (w, h), radius=radius, image=img)
         seg, fade = D.trail_segments(res.tracks_3d, trail_idx, t, cfg.tail, res.visible)
-        tc = D.fade_to(np.broadcast_to(D.DYNAMIC_COLOR, (len(fade), 3)), fade)
+        tc = D.trail_colors(fade)
         for (a, b), c in zip(seg, tc, strict=True):
             draw_polyline(img, np.stack([a, b]), views[t], K, tuple(int(v) for v in c), 1)
         if cfg.view != "input":
@@ -159,6 +166,7 @@ def render(result_dir: str | Path, cfg: RenderConfig | None = None, gt: str | Pa
     from trackingworld.eval.evaluate import load_gt
 
     cfg = cfg or RenderConfig()
+    cfg.validate()  # before anything is read or written
     result_dir = Path(result_dir)
     res = load_result(result_dir)
     frames, why = frames_for_result(result_dir, res.depth.shape, video)

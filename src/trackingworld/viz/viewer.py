@@ -45,6 +45,9 @@ class Viewer:
         self.T = result.num_frames
         self.H, self.W = result.depth.shape[1:]
         self.order = D.display_order(result.num_tracks, self.cfg.seed)
+        self.n_visible = result.visible.sum(0)  # [T] tracks visible in each frame
+        self.n_dynamic = int(result.is_dynamic.sum())
+        self.n_static = result.num_tracks - self.n_dynamic
         self.med_depth = D.median_depth(result.depth)
         self.extent = D.scene_extent(result.poses_c2w, self.med_depth)
         self.trail_idx = D.trail_indices(result.is_dynamic, result.visible, self.order, self.cfg.trail_tracks)
@@ -123,12 +126,8 @@ class Viewer:
         if key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
-        r = self.res
-        idx = D.frame_indices(r.visible, t, self.order, self._k(self.cfg.max_points, int(r.visible[:, t].sum())))
-        pts = r.tracks_3d[idx, t]
-        depth = D.camera_depths(pts, r.poses_c2w[t]) if self.color_mode.value == "depth" else None
-        col = D.point_colors(self.color_mode.value, idx, t, tracks_2d=r.tracks_2d, is_dynamic=r.is_dynamic,
-                             colors=r.colors, frame=None if self.frames is None else self.frames[t], depth=depth)
+        idx, pts, col = D.frame_points(self.res, t, self.order, self._k(self.cfg.max_points, int(self.n_visible[t])),
+                                       self.color_mode.value, None if self.frames is None else self.frames[t])
         self._cache[key] = (idx, pts, col)
         while len(self._cache) > FRAME_CACHE:
             self._cache.popitem(last=False)
@@ -142,7 +141,7 @@ class Viewer:
                 return
             self.t = t
             idx, pts, col = self.frame_data(self.t)
-            n_vis = int(self.res.visible[:, self.t].sum())
+            n_vis = int(self.n_visible[self.t])
             self.points = self.server.scene.add_point_cloud(
                 "/frame/points", pts, col, point_size=self._size(len(idx), n_vis), point_shape="rounded",
                 visible=self.layers["current points"].value)
@@ -152,7 +151,7 @@ class Viewer:
                 self.image.image = self._thumb(self.t)
             self.info.content = (f"frame **{self.t}** / {self.T - 1} &nbsp; drawn **{len(idx):,}** of "
                                  f"{n_vis:,} visible tracks ({self.res.num_tracks:,} in all, "
-                                 f"{int(self.res.is_dynamic.sum()):,} dynamic)")
+                                 f"{self.n_dynamic:,} dynamic)")
 
     def _redraw(self) -> None:
         with self._lock:
@@ -178,7 +177,7 @@ class Viewer:
     def _draw_static(self) -> None:
         r = self.res
         idx, xyz = D.static_map(r.tracks_3d, r.query_frame, r.is_dynamic, self.order,
-                                self._k(self.cfg.max_static_points, int((~r.is_dynamic).sum())))
+                                self._k(self.cfg.max_static_points, self.n_static))
         if self.color_mode.value == "label":
             col = np.broadcast_to(D.STATIC_COLOR, (len(idx), 3))
         else:
@@ -186,7 +185,7 @@ class Viewer:
         col = D.fade_to(col, np.full(len(idx), 0.8, np.float32))  # a little paler than the current frame
         self.static = self.server.scene.add_point_cloud(
             "/static", xyz, np.ascontiguousarray(col),
-            point_size=0.8 * self._size(len(idx), int((~r.is_dynamic).sum())), point_shape="rounded",
+            point_size=0.8 * self._size(len(idx), self.n_static), point_shape="rounded",
             visible=self.layers["static map"].value)
 
     def _draw_trails(self) -> None:
@@ -194,7 +193,7 @@ class Viewer:
                                      self.res.visible)
         if seg.shape[0] == 0:
             seg, fade = np.zeros((1, 2, 3), np.float32), np.zeros(1, np.float32)
-        col = D.fade_to(np.broadcast_to(D.DYNAMIC_COLOR, (len(fade), 3)), fade)
+        col = D.trail_colors(fade)
         self.trails = self.server.scene.add_line_segments(
             "/trails", seg, np.repeat(col[:, None], 2, axis=1), thickness=2.0, thickness_units="screen",
             visible=self.layers["dynamic trails"].value and bool(fade.any()))

@@ -65,7 +65,7 @@ def export(result_dir: str | os.PathLike, fmt: str, out: str | os.PathLike | Non
     cap = max_points if max_points is not None else DEFAULT_MAX_POINTS.get(fmt)
     order = D.display_order(res.num_tracks)
     frames = None
-    if fmt in ("colmap", "nerfstudio", "rrd", "ply") and (images or fmt in ("rrd", "ply")):
+    if fmt in ("rrd", "ply") or (images and fmt in ("colmap", "nerfstudio")):  # colours, or images to write
         frames, why = frames_for_result(result_dir, res.depth.shape, video)
         if frames is None and verbose:
             print(f"[export] no input frames ({why}): colours from the tracks, no images", file=sys.stderr)
@@ -117,10 +117,8 @@ def _export_ply(res: Result, out: Path, frames, order, cap: int, verbose: bool) 
         sidx, sxyz = D.static_map(res.tracks_3d, res.query_frame, res.is_dynamic, order, cap)
         write_ply(tmp / "static.ply", sxyz, res.colors[sidx])
         for t in range(res.num_frames):
-            idx = D.frame_indices(res.visible, t, order, cap)
-            col = D.point_colors("video", idx, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic,
-                                 colors=res.colors, frame=None if frames is None else frames[t])
-            write_ply(tmp / f"frame_{t:05d}.ply", res.tracks_3d[idx, t], col, res.is_dynamic[idx])
+            idx, pts, col = D.frame_points(res, t, order, cap, "video", None if frames is None else frames[t])
+            write_ply(tmp / f"frame_{t:05d}.ply", pts, col, res.is_dynamic[idx])
             n += len(idx)
             p.update(t + 1)
     return {"frames": res.num_frames, "points": n, "static_points": len(sidx)}

@@ -32,10 +32,9 @@ def write_rrd(res: Result, path: Path, frames: np.ndarray | None, order: np.ndar
     n_points = 0
     for t in range(T):
         rec.set_time("frame", sequence=t)
-        idx = D.frame_indices(res.visible, t, order, max_points)
-        col = D.point_colors("video + dynamic tint", idx, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic,
-                             colors=res.colors, frame=None if frames is None else frames[t])
-        rec.log("world/points", rr.Points3D(res.tracks_3d[idx, t], colors=col))
+        idx, pts, col = D.frame_points(res, t, order, max_points, "video + dynamic tint",
+                                       None if frames is None else frames[t])
+        rec.log("world/points", rr.Points3D(pts, colors=col))
         n_points += len(idx)
         seg, _ = D.trail_segments(res.tracks_3d, trail_idx, t, 12, res.visible)
         rec.log("world/dynamic_trails", rr.LineStrips3D(seg, colors=D.DYNAMIC_COLOR))
