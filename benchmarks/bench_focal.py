@@ -1,6 +1,7 @@
 """What the intrinsics cost when none are given: synthetic scenes rendered at several fields of view, run with the
-true intrinsics, with the assumed 60 deg, and self-calibrated from the video (priors.focal); depth and masks given,
-and once more with nothing but the video.
+true intrinsics, with the assumed 60 deg, and self-calibrated from the video (priors.focal), each with the focal
+length held fixed and refined in stage 2 (``--refine-focal``); depth and masks given, and once more with nothing
+but the video.
 
     .venv/bin/python benchmarks/bench_focal.py      # writes benchmarks/results/focal_default.md
 
@@ -22,13 +23,17 @@ from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DCon
 from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
 
-# row: (depth and masks given?, intrinsics given?, self-calibrate?)
+# row: (depth and masks given?, intrinsics given?, self-calibrate?, stage-2 focal refinement)
 ROWS = {
-    "given intrinsics": (True, True, False),
-    "assumed 60 deg": (True, False, False),
-    "self-calibrated": (True, False, True),
-    "video only, assumed 60 deg": (False, False, False),
-    "video only, self-calibrated": (False, False, True),
+    "given intrinsics": (True, True, False, "off"),
+    "assumed 60 deg, fixed": (True, False, False, "off"),
+    "assumed 60 deg, refined": (True, False, False, "on"),
+    "self-calibrated, fixed": (True, False, True, "off"),
+    "self-calibrated, refined": (True, False, True, "on"),
+    "video only, assumed 60 deg, fixed": (False, False, False, "off"),
+    "video only, assumed 60 deg, refined": (False, False, False, "on"),
+    "video only, self-calibrated, fixed": (False, False, True, "off"),
+    "video only, self-calibrated, refined": (False, False, True, "on"),
 }
 
 
@@ -45,13 +50,13 @@ def main(argv=None) -> int:
         inp = scene / "input"
         frames, _ = read_frames(str(inp / "frames"))
         tracks = tracks_file(frames, work / f"tracks{fov:g}.npz")
-        for name, (priors_given, k_given, selfcal) in ROWS.items():
+        for name, (priors_given, k_given, selfcal, refine) in ROWS.items():
             kw = ({"depth": str(inp / "depth.npy"), "masks": str(inp / "masks")} if priors_given else {})
             if k_given:
                 kw["intrinsics"] = str(inp / "intrinsics.txt")
             cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), self_calibrate=selfcal, **kw),
                             track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)),
-                            optim=OptimConfig(verbose=False))
+                            optim=OptimConfig(verbose=False, refine_focal=refine))
             out = work / f"run{fov:g}_{len(results)}"
             r = run_and_evaluate(cfg, out, scene, f"fov {fov:g}: {name}")
             z = np.load(out / "result.npz")

@@ -14,6 +14,7 @@ from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt,
 from trackingworld.optim import lie, stage2, stage3
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import chain_clips, clip_frames, initial_poses
+from trackingworld.synth import render_and_write
 
 K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
 
@@ -78,7 +79,8 @@ def test_stage1_recovers_poses_from_static_tracks():
 def test_stage2_flags_the_unmasked_mover_and_refines_poses():
     uv, z, vis, c2w, moving = _scene()
     cfg, p, R, t, X0 = _stage2_start(uv, z, vis)
-    R2, t2, X2, cost = stage2.solve_lm(R, t, X0, p)
+    sol = stage2.solve_lm(R, t, X0, p)
+    R2, t2, X2, cost = sol.R, sol.t, sol.X, sol.cost
     assert cost < float(stage2.loss(R, t, X0, p))
     err = np.abs(lie.w2c_to_c2w(R2, t2)[:, :3, 3] - c2w[:, :3, 3]).max()
     assert err < 0.05
@@ -94,9 +96,9 @@ def test_stage2_flags_the_unmasked_mover_and_refines_poses():
 def test_stage2_lm_beats_a_short_adam_run_on_the_same_loss():
     uv, z, vis, c2w, moving = _scene(T=10, N=600, n_moving=60)
     cfg, p, R, t, X0 = _stage2_start(uv, z, vis)
-    _, _, _, lm_cost = stage2.solve_lm(R, t, X0, p)
-    Ra, ta, Xa, _, _ = stage2.solve_adam(R, t, X0, p, iters=200)
-    assert lm_cost <= float(stage2.loss(Ra, ta, Xa, p))
+    lm_cost = stage2.solve_lm(R, t, X0, p).cost
+    ad = stage2.solve_adam(R, t, X0, p, iters=200)
+    assert lm_cost <= float(stage2.loss(ad.R, ad.t, ad.X, p))
 
 
 def test_stage3_solvers_agree_and_lower_the_objective():
@@ -173,3 +175,78 @@ def test_video_alone_runs_weight_free(tiny_scene, tmp_path):
     assert main(["eval", str(out), "--gt", str(tiny_scene)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["camera"]["ate_pct_path"] < 15  # measured 6.7; identity poses (the baseline) give 50.8
+
+
+def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
+    uv, z, vis, c2w, _ = _scene(T=5, N=40, n_moving=0)
+    Kw = K.copy()
+    Kw[:2, :2] *= 0.8
+    p = stage2.BAProblem.from_tracks(uv, z, vis, Kw, OptimConfig(verbose=False), torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(c2w)
+    X = stage2.init_points(R, t, p)
+    free = torch.ones(5, dtype=torch.bool)
+    free[0] = False
+    Hcc, Hxx, Hcx, gc, gx, fb = stage2._linearize(R, t, X, p, focal=True)
+    dc, dx, df = stage2._schur_step(Hcc, Hxx, Hcx, gc, gx, p, 0.0, free, fb)
+    T, N = 5, p.n_points
+    n = 6 * T + 3 * N + 1
+    H = torch.zeros(n, n, dtype=torch.float64)
+    g = torch.zeros(n, dtype=torch.float64)
+    for i in range(T):
+        H[6 * i:6 * i + 6, 6 * i:6 * i + 6] = Hcc[i]
+        g[6 * i:6 * i + 6] = gc[i]
+        H[6 * i:6 * i + 6, -1] = H[-1, 6 * i:6 * i + 6] = fb.Hcf[i]
+    for j in range(N):
+        o = 6 * T + 3 * j
+        H[o:o + 3, o:o + 3] = Hxx[j]
+        g[o:o + 3] = gx[j]
+        H[o:o + 3, -1] = H[-1, o:o + 3] = fb.Hxf[j]
+    for m in range(p.pt.shape[0]):
+        i, o = int(p.fr[m]), 6 * T + 3 * int(p.pt[m])
+        H[6 * i:6 * i + 6, o:o + 3] += Hcx[m]
+        H[o:o + 3, 6 * i:6 * i + 6] += Hcx[m].T
+    H[-1, -1], g[-1] = fb.Hff, fb.gf
+    keep = torch.arange(n) >= 6  # frame 0 fixed
+    sol = torch.zeros(n, dtype=torch.float64)
+    reg = 1e-12 * torch.eye(int(keep.sum()), dtype=torch.float64)  # points seen nowhere have empty blocks
+    sol[keep] = -torch.linalg.solve(H[keep][:, keep] + reg, g[keep])
+    assert abs(df - float(sol[-1])) < 1e-6 * max(1.0, abs(df))
+    assert torch.allclose(dc.reshape(-1), sol[:6 * T], atol=1e-6)
+    assert torch.allclose(dx.reshape(-1), sol[6 * T:-1], atol=1e-5)
+    # the focal gradient is the objective's: d loss / d phi = 2 gf
+    h = 1e-6
+    num = (float(stage2.loss(R, t, X, p.with_focal_scale(h))) - float(stage2.loss(R, t, X, p.with_focal_scale(-h))))
+    assert abs(num / (2 * h) - 2 * float(fb.gf)) < 1e-4 * abs(num / (2 * h))
+
+
+@pytest.mark.parametrize("factor", [0.85, 1.2])
+def test_refine_focal_recovers_the_focal_length(factor):
+    uv, z, vis, c2w, moving = _scene(n_moving=150)
+    Kw = K.copy()
+    Kw[0, 0] *= factor
+    Kw[1, 1] *= factor
+    p = stage2.BAProblem.from_tracks(uv, z, vis, Kw, OptimConfig(verbose=False), torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(c2w)
+    sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=15)
+    assert torch.equal(sol.K, p.K)  # not refined unless asked
+    fs = stage2.refine_focal(sol, p, moving)
+    assert abs(float(fs.K[0, 0]) / K[0, 0] - 1) < 0.01 and abs(float(fs.K[1, 1]) / K[1, 1] - 1) < 0.01
+    assert torch.equal(fs.K[:2, 2], p.K[:2, 2])  # principal point kept
+
+
+def test_run_refines_an_assumed_field_of_view(tmp_path):
+    scene = render_and_write(tmp_path / "scene", "default", seed=3, frames=10, size=(128, 96), verbose=False,
+                             fov_deg=80.0)
+    inp = scene / "input"
+    fovs = {}
+    for mode in ("auto", "off"):
+        out = tmp_path / mode
+        assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--no-self-calibration", "--refine-focal", mode,
+                     "--quiet"]) == 0
+        K_out = np.load(out / "result.npz")["intrinsics"]
+        fovs[mode] = float(np.rad2deg(2 * np.arctan2(64, K_out[0, 0])))
+        report = json.loads((out / "optim.json").read_text())["stage2"]
+        assert ("focal" in report) == (mode == "auto")
+    assert abs(fovs["off"] - 60) < 1e-3
+    assert abs(fovs["auto"] - 80) < 0.5 * abs(fovs["off"] - 80)  # at least half the error removed

@@ -21,12 +21,17 @@ reweighted normal equations, the points eliminated by the Schur complement (3x3 
 system solved by block-Jacobi preconditioned conjugate gradients (memory and time linear in the number of
 observations). The offsets are then read off the final residuals: ``|O| = (r - c) z / f``.
 
-Reference solver (``adam``, the paper's way): Adam on poses, points and explicit offsets.
+Focal length (optional, ``refine_focal``): one more unknown, ``phi = log(f / f0)`` scaling fx and fy together
+(principal point fixed). The projection's derivative is ``d uv / d phi = uv - c``; in the structured solver the
+unknown joins the reduced pose system as one extra row coupled to every pose and, through the Schur complement,
+to every point.
+
+Reference solver (``adam``, the paper's way): Adam on poses, points and explicit offsets (and phi).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -52,6 +57,9 @@ class BAProblem:
     lambda_asap: float = 5.0
     offsets: bool = True  # False: the "w/o O_static" ablation, plain least squares
     log_dc: bool = True  # depth residual log(z / D) instead of z - D metres (see OptimConfig.dc_space)
+    # focal length (px) of the Huber thresholds; None: K's. A refined focal keeps the starting one here, so the
+    # kernel stays the same in pixels: with the current focal, pixel errors would get cheaper as f grows.
+    kernel_focal: float | None = None
 
     @staticmethod
     def from_tracks(uv: np.ndarray, depth: np.ndarray, vis: np.ndarray, K: np.ndarray, cfg: OptimConfig,
@@ -65,13 +73,22 @@ class BAProblem:
             0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap, not cfg.no_offsets,
             cfg.dc_space == "log")
 
+    def with_focal_scale(self, phi) -> BAProblem:
+        """The same problem with fx and fy multiplied by ``exp(phi)`` (phi a float or a 0-d tensor)."""
+        s = torch.exp(torch.as_tensor(phi, dtype=self.K.dtype, device=self.K.device))
+        diag = torch.stack([s, s, torch.ones_like(s)])
+        scale = torch.diag_embed(diag - 1) + 1  # fx and fy scaled, principal point and skew kept
+        kf = float(self.focal) if self.kernel_focal is None else self.kernel_focal
+        return replace(self, K=self.K * scale, kernel_focal=kf)
+
     @property
     def focal(self) -> torch.Tensor:
         return torch.sqrt(self.K[0, 0] * self.K[1, 1])
 
     def thresholds(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Huber thresholds from the eliminated offsets: pixels [M] and depth-residual units [M]."""
-        c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * self.focal)
+        f = self.focal if self.kernel_focal is None else self.kernel_focal
+        c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * f)
         c_d = self.lambda_asap * self.depth_scale(z) / (2 * max(self.lambda_dc, 1e-12))
         return c_uv, c_d
 
@@ -114,7 +131,7 @@ def offset_norms(R, t, X, p: BAProblem) -> torch.Tensor:
     if not p.offsets:
         return torch.zeros_like(r_d)
     c_uv, c_d = p.thresholds(Y[:, 2])
-    o_t = (r_uv.norm(dim=-1) - c_uv).clamp_min(0) * Y[:, 2].clamp_min(1e-3) / p.focal
+    o_t = (r_uv.norm(dim=-1) - c_uv).clamp_min(0) * Y[:, 2].clamp_min(1e-3) / (p.kernel_focal or p.focal)
     o_r = (r_d.abs() - c_d).clamp_min(0) * p.depth_scale(Y[:, 2]) if p.lambda_dc > 0 else torch.zeros_like(o_t)
     return o_t + o_r
 
@@ -129,6 +146,8 @@ def explicit_objective(R, t, X, O, p: BAProblem) -> torch.Tensor:
     o_r = (dY * ray).sum(-1) / (ray * ray).sum(-1)
     o_t = (dY - o_r[:, None] * ray).norm(dim=-1)
     asap = (o_t + o_r.abs()) if p.offsets else torch.zeros_like(o_r)
+    if p.kernel_focal is not None:  # a refined focal: the tangential offset priced at the starting focal
+        asap = asap + o_t * (p.focal / p.kernel_focal - 1)
     return (p.lambda_ba * (r_uv**2).sum(-1) + p.lambda_dc * r_d**2 + p.lambda_asap * asap).mean()
 
 
@@ -150,9 +169,20 @@ def closed_form_offsets(R, t, X, p: BAProblem) -> torch.Tensor:
     return (R[p.fr].transpose(-1, -2) @ dY[..., None])[..., 0]
 
 
-def _linearize(R, t, X, p: BAProblem, points_only: bool = False):
+@dataclass
+class _FocalBlocks:
+    """Gauss-Newton blocks of the focal unknown phi: Hff, gf scalars, Hcf [T,6], Hxf [N,3]."""
+
+    Hff: torch.Tensor
+    gf: torch.Tensor
+    Hcf: torch.Tensor
+    Hxf: torch.Tensor
+
+
+def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = False):
     """Gauss-Newton blocks (Hcc, Hxx, Hcx, gc, gx) of the IRLS-weighted problem; with ``points_only`` the pose
-    blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs."""
+    blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs. With
+    ``focal`` a sixth item holds the blocks of phi (:class:`_FocalBlocks`)."""
     Y, r_uv, r_d = residuals(R, t, X, p)
     M = Y.shape[0]
     w_uv = torch.ones_like(r_d)
@@ -180,7 +210,15 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False):
     Hcx = Jc.transpose(1, 2) @ WJx  # [M,6,3]
     gc = torch.zeros(T, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, _mv(WJc, r))
     gx = torch.zeros(N, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, _mv(WJx, r))
-    return Hcc, Hxx, Hcx, gc, gx
+    if not focal:
+        return Hcc, Hxx, Hcx, gc, gx
+    Jf = torch.cat([r_uv + p.uv - p.K[:2, 2], torch.zeros_like(r_d)[:, None]], 1)  # d residual / d phi [M,3]
+    WJf = W * Jf
+    fb = _FocalBlocks(
+        (WJf * Jf).sum(), (WJf * r).sum(),
+        torch.zeros(T, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, _mv(Jc, WJf)),
+        torch.zeros(N, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, _mv(Jx, WJf)))
+    return Hcc, Hxx, Hcx, gc, gx, fb
 
 
 def _mv(J: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -193,76 +231,141 @@ def _damp(H: torch.Tensor, mu: float) -> torch.Tensor:
     return H + torch.diag_embed(mu * d + 1e-12 * (1 + d.abs().amax(-1, keepdim=True)))
 
 
-def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor):
-    """One damped Gauss-Newton step: the points eliminated (Schur complement), poses by PCG."""
+def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor,
+                fb: _FocalBlocks | None = None):
+    """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by PCG.
+    Returns (dc [T,6], dx [N,3], dphi float)."""
     Hxx_inv = torch.linalg.inv(_damp(Hxx, mu))
     Hcc_d = _damp(Hcc, mu)
     Hinv_m = Hxx_inv[p.pt]  # [M,3,3]
     T = p.n_frames
     fmask = free[:, None].to(Hcc.dtype)
+    if fb is None:  # no focal unknown: zero couplings keep one code path
+        fb = _FocalBlocks(torch.zeros((), dtype=Hcc.dtype, device=Hcc.device), torch.zeros_like(Hcc[0, 0, 0]),
+                          torch.zeros_like(gc), torch.zeros_like(gx))
+        use_f = False
+    else:
+        use_f = True
+    Hff_d = fb.Hff * (1 + mu) + 1e-12
+
+    # the unknown is packed as [T+1, 6]: rows 0..T-1 the poses, row T column 0 phi (the rest unused)
+    def unpack(v):
+        return v[:T] * fmask, v[T, 0] if use_f else torch.zeros_like(v[T, 0])
 
     def matvec(v):
-        v = v * fmask
-        a = (Hcx.transpose(1, 2) @ v[p.fr][..., None])[..., 0]
-        b = torch.zeros_like(gx).index_add_(0, p.pt, a)
+        vc, vf = unpack(v)
+        a = (Hcx.transpose(1, 2) @ vc[p.fr][..., None])[..., 0]
+        b = torch.zeros_like(gx).index_add_(0, p.pt, a) + fb.Hxf * vf
         c = (Hxx_inv @ b[..., None])[..., 0]
         d = (Hcx @ c[p.pt][..., None])[..., 0]
-        out = (Hcc_d @ v[..., None])[..., 0] - torch.zeros_like(v).index_add_(0, p.fr, d)
-        return out * fmask
+        out = torch.zeros_like(v)
+        out[:T] = ((Hcc_d @ vc[..., None])[..., 0] + fb.Hcf * vf - torch.zeros_like(vc).index_add_(0, p.fr, d)) * fmask
+        if use_f:
+            out[T, 0] = (fb.Hcf * vc).sum() + Hff_d * vf - (fb.Hxf * c).sum()
+        return out
 
     blocks = Hcc_d - torch.zeros_like(Hcc).index_add_(0, p.fr, Hcx @ Hinv_m @ Hcx.transpose(1, 2))
     eye = torch.eye(6, dtype=Hcc.dtype, device=Hcc.device)
     blocks = torch.where(free[:, None, None], blocks, eye)
     B_inv = torch.linalg.inv(blocks)
+    s_ff = (Hff_d - (fb.Hxf * (Hxx_inv @ fb.Hxf[..., None])[..., 0]).sum()).clamp_min(1e-30)
+
+    def precond(r):
+        out = torch.zeros_like(r)
+        out[:T] = (B_inv @ r[:T, ..., None])[..., 0]
+        out[T, 0] = r[T, 0] / s_ff
+        return out
+
     y = (Hxx_inv @ gx[..., None])[..., 0]
-    rhs = -(gc - torch.zeros_like(gc).index_add_(0, p.fr, (Hcx @ y[p.pt][..., None])[..., 0])) * fmask
-    dc = pcg(matvec, rhs, lambda r: (B_inv @ r[..., None])[..., 0], iters=max(60, 6 * T))
-    dc = dc * fmask
+    rhs = torch.zeros(T + 1, 6, dtype=gc.dtype, device=gc.device)
+    rhs[:T] = -(gc - torch.zeros_like(gc).index_add_(0, p.fr, (Hcx @ y[p.pt][..., None])[..., 0])) * fmask
+    if use_f:
+        rhs[T, 0] = -(fb.gf - (fb.Hxf * y).sum())
+    sol = pcg(matvec, rhs, precond, iters=max(60, 6 * T))
+    dc, df = unpack(sol)
     back = torch.zeros_like(gx).index_add_(0, p.pt, (Hcx.transpose(1, 2) @ dc[p.fr][..., None])[..., 0])
-    dx = -(Hxx_inv @ (gx + back)[..., None])[..., 0]
-    return dc, dx
+    dx = -(Hxx_inv @ (gx + back + fb.Hxf * df)[..., None])[..., 0]
+    return dc, dx, float(df)
 
 
-def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None):
-    """Levenberg-Marquardt on poses and points (see the module docstring). Frame 0 stays fixed."""
+@dataclass
+class BASolution:
+    """World-to-camera R [T,3,3], t [T,3], points X [N,3], the final objective, K [3,3] (refined when asked),
+    and the explicit offsets O [M,3] of the Adam reference (None for the structured solver)."""
+
+    R: torch.Tensor
+    t: torch.Tensor
+    X: torch.Tensor
+    cost: float
+    K: torch.Tensor
+    O: torch.Tensor | None = None
+
+
+MAX_FOCAL_STEP = 0.2  # largest change of log focal length per LM step (a guard on weakly determined focal)
+
+
+def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None,
+             refine_focal: bool = False) -> BASolution:
+    """Levenberg-Marquardt on poses and points, and the focal length with ``refine_focal`` (see the module
+    docstring). Frame 0 stays fixed."""
     free = torch.ones(p.n_frames, dtype=torch.bool, device=R.device)
     free[0] = False
+    phi = 0.0
     cost = float(loss(R, t, X, p))
     mu = 1e-4
     for it in range(iters):
-        Hcc, Hxx, Hcx, gc, gx = _linearize(R, t, X, p)
+        pk = p.with_focal_scale(phi) if refine_focal else p
+        Hcc, Hxx, Hcx, gc, gx, *fb = _linearize(R, t, X, pk, focal=refine_focal)
         while True:
-            dc, dx = _schur_step(Hcc, Hxx, Hcx, gc, gx, p, mu, free)
+            dc, dx, df = _schur_step(Hcc, Hxx, Hcx, gc, gx, pk, mu, free, fb[0] if fb else None)
+            df = float(np.clip(df, -MAX_FOCAL_STEP, MAX_FOCAL_STEP))
             Rn, tn = lie.update(R, t, dc)
             Xn = X + dx
-            new = float(loss(Rn, tn, Xn, p))
+            new = float(loss(Rn, tn, Xn, p.with_focal_scale(phi + df) if refine_focal else p))
             if new <= cost or mu > 1e6:
                 break
             mu *= 8
         if new > cost:
             break
         rel = (cost - new) / max(cost, 1e-300)
-        R, t, X, cost = Rn, tn, Xn, new
+        R, t, X, cost, phi = Rn, tn, Xn, new, phi + df
         mu = max(mu / 4, 1e-8)
         if log:
             log("stage 2", it, cost)
         if rel < tol:
             break
-    return R, t, X, cost
+    return BASolution(R, t, X, cost, p.with_focal_scale(phi).K if refine_focal else p.K)
 
 
-def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=None):
-    """The paper's way: Adam (amsgrad) on pose updates, points and explicit offsets ``O [M,3]``."""
+def refine_focal(sol: BASolution, p: BAProblem, moving: np.ndarray, inlier_px: float = 3.0, iters: int = 30,
+                 log=None) -> BASolution:
+    """The focal length from a stage-2 solution: bundle adjustment with the focal length free (least squares,
+    no offsets) over the observations of the tracks not flagged ``moving [N]`` whose reprojection error is below
+    ``inlier_px``. The full objective is not used for this: its offsets price every mover's pixel error, which
+    shrinks with the focal length, so it prefers too short a focal length whenever something moves.
+    Returns poses, the points it saw, the cost of that fit and the refined K."""
+    with torch.no_grad():
+        _, r_uv, _ = residuals(sol.R, sol.t, sol.X, p)
+    keep = ~torch.as_tensor(moving, device=p.pt.device)[p.pt] & (r_uv.norm(dim=-1) < inlier_px)
+    q = replace(p, pt=p.pt[keep], fr=p.fr[keep], uv=p.uv[keep], depth=p.depth[keep], offsets=False)
+    return solve_lm(sol.R, sol.t, sol.X, q, iters, 1e-9, log, refine_focal=True)
+
+
+def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=None,
+               refine_focal: bool = False) -> BASolution:
+    """The paper's way: Adam (amsgrad) on pose updates, points and explicit offsets ``O [M,3]`` (and phi with
+    ``refine_focal``)."""
     xi = torch.zeros(p.n_frames, 6, dtype=R.dtype, device=R.device, requires_grad=True)
     Xp = X.clone().requires_grad_(True)
     O = torch.zeros(p.pt.shape[0], 3, dtype=R.dtype, device=R.device, requires_grad=p.offsets)
-    params = [xi, Xp] + ([O] if p.offsets else [])
+    phi = torch.zeros((), dtype=R.dtype, device=R.device, requires_grad=refine_focal)
+    params = [xi, Xp] + ([O] if p.offsets else []) + ([phi] if refine_focal else [])
     opt = torch.optim.Adam(params, lr=lr, amsgrad=True)
     gauge = torch.ones(p.n_frames, 1, dtype=R.dtype, device=R.device)
     gauge[0] = 0
     for it in range(iters):
         Rn, tn = lie.update(R, t, xi * gauge)
-        obj = explicit_objective(Rn, tn, Xp, O, p)
+        obj = explicit_objective(Rn, tn, Xp, O, p.with_focal_scale(phi))
         opt.zero_grad()
         obj.backward()
         opt.step()
@@ -270,7 +373,9 @@ def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=N
             log("stage 2 adam", it, float(obj))
     with torch.no_grad():
         Rn, tn = lie.update(R, t, xi * gauge)
-        return Rn, tn, Xp.detach(), O.detach(), float(explicit_objective(Rn, tn, Xp, O, p))
+        pk = p.with_focal_scale(phi)
+        return BASolution(Rn, tn, Xp.detach(), float(explicit_objective(Rn, tn, Xp, O, pk)), pk.K.detach(),
+                          O.detach())
 
 
 def init_points(R, t, p: BAProblem) -> torch.Tensor:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from functools import partial
 
 import cv2
@@ -22,6 +23,7 @@ from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
+from trackingworld.priors.sources import intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
@@ -39,17 +41,29 @@ def timed(timings: dict, name: str, verbose: bool):
         print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
+FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
+FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
+
+
+def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
+    """[N] bool: optimised static tracks whose offsets reach epsilon (moving background objects)."""
+    if not p.offsets:
+        return np.zeros(p.n_points, bool)
+    return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
+
+
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame."""
     return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
 
 
 def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarray, cfg: OptimConfig,
-             timings: dict, device: str = "cpu", seed: int = 0) -> dict:
+             timings: dict, device: str = "cpu", seed: int = 0, refine_focal: bool = False) -> dict:
     """Stages 1-3 on dense tracks ``tr`` (processing resolution), the depth prior ``[T,h,w]`` metres, the
-    coarse masks ``[T,h,w]`` and K ``[3,3]``. Returns a dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world
-    metres, ``is_dynamic [N]``, ``labels [N]`` (mask labels), ``depth [T,h,w]`` consistent video depth and
-    ``info`` (losses, counts)."""
+    coarse masks ``[T,h,w]`` and K ``[3,3]``; ``refine_focal``: the focal length is refined in stage 2. Returns a
+    dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world metres, ``is_dynamic [N]``, ``labels [N]`` (mask
+    labels), ``depth [T,h,w]`` consistent video depth, ``K [3,3]`` (refined or as given) and ``info`` (losses,
+    counts)."""
     tm = partial(timed, timings, verbose=cfg.verbose)
     log = stage_logger(cfg.verbose, every=5)
     rng = np.random.default_rng(seed)
@@ -78,16 +92,37 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         R, t = lie.c2w_to_w2c(poses, dtype, device)
         X0 = stage2.init_points(R, t, p)
         loss0 = float(stage2.loss(R, t, X0, p))
-        if cfg.solver == "adam":
-            R, t, X, _, _ = stage2.solve_adam(R, t, X0, p, cfg.adam_iters[1], cfg.adam_lr, log)
-        else:
-            R, t, X, _ = stage2.solve_lm(R, t, X0, p, cfg.lm_iters, cfg.lm_tol, log)
+        f_start = float(np.sqrt(K[0, 0] * K[1, 1]))
+        X = X0
+        # with refine_focal: rounds of (bundle adjustment, focal length from its static inliers) until the focal
+        # length settles; the Adam reference gets one round (it is the slow path by design)
+        rounds = (1 if cfg.solver == "adam" else FOCAL_ROUNDS) if refine_focal else 1
+        for rnd in range(rounds):
+            if cfg.solver == "adam":
+                sol = stage2.solve_adam(R, t, X, p, cfg.adam_iters[1], cfg.adam_lr, log)
+            else:
+                sol = stage2.solve_lm(R, t, X, p, cfg.lm_iters, cfg.lm_tol, log)
+            R, t, X = sol.R, sol.t, sol.X
+            moving_s2 = _moving(R, t, X, p, cfg)
+            if not refine_focal:
+                break
+            f0 = float(np.sqrt(K[0, 0] * K[1, 1]))
+            fsol = stage2.refine_focal(sol, p, moving_s2, log=log)
+            K = fsol.K.cpu().numpy()
+            p = replace(p, K=fsol.K)
+            R, t = fsol.R, fsol.t
+            X = stage2.fit_points(R, t, p)  # every control track against the new focal length, poses held
+            moving_s2 = _moving(R, t, X, p, cfg)
+            f1 = float(np.sqrt(K[0, 0] * K[1, 1]))
+            if cfg.verbose:
+                print(f"[stage2] focal length, round {rnd + 1}: {f0:.1f} -> {f1:.1f} px", file=sys.stderr, flush=True)
+            if abs(np.log(f1 / f0)) < FOCAL_TOL:
+                break
         info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p))}
+        if refine_focal:
+            info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": float(np.sqrt(K[0, 0] * K[1, 1])),
+                                       "rounds": rnd + 1}
         poses = lie.w2c_to_c2w(R, t)
-        moving_s2 = np.zeros(len(s2), bool)
-        if p.offsets:
-            stat = stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat)
-            moving_s2 = stat >= cfg.epsilon
         X = X.detach().cpu().numpy()
         info["stage2"]["moving"] = int(moving_s2.sum())
 
@@ -164,7 +199,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         z_all = camera_depths(xyz, poses)
         ratio = np.where(vis, z_all / np.maximum(D, 1e-6), np.nan)
         depth = ratio_maps(uv, D, ratio, vis, prior.astype(np.float64), K) * prior
-    return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth,
+    return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "info": info}
 
 
@@ -219,14 +254,21 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     timings = {} if timings is None else timings
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
-    out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed)
+    mode = cfg.optim.refine_focal
+    if mode not in ("auto", "on", "off"):
+        raise InputError(f"refine_focal: {mode!r} is not auto, on or off")
+    refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
+    out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed, refine)
     if report is not None:
         report.update(out["info"])
+    K_in = inp.K_in.copy()
+    K_in[0, 0] *= out["K"][0, 0] / inp.K[0, 0]
+    K_in[1, 1] *= out["K"][1, 1] / inp.K[1, 1]
     W, H = inp.size_in
     qt = tr.queries[:, 0].astype(np.int32)
     depth = resize_stack(out["depth"].astype(np.float32), W, H, cv2.INTER_LINEAR)
     return Result(
         tracks_2d=inp.to_input_pixels(tr.tracks), visible=tr.visible, tracks_3d=out["xyz"], query_frame=qt,
         is_dynamic=out["is_dynamic"], colors=sample_colors(inp.frames, tr.queries), poses_c2w=out["poses_c2w"],
-        intrinsics=inp.K_in, depth=depth,
+        intrinsics=K_in, depth=depth,
     )

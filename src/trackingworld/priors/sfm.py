@@ -191,7 +191,8 @@ def _bundle_adjust(R, t, X, uv, vis, K, ref: int, cfg: SfMConfig, device="cpu"):
     tt = torch.as_tensor(t[order], dtype=torch.float64, device=device)
     Xt = torch.as_tensor(X, dtype=torch.float64, device=device)
     c0 = float(stage2.loss(Rt, tt, Xt, p))
-    Rt, tt, Xt, c1 = stage2.solve_lm(Rt, tt, Xt, p, cfg.ba_iters, 1e-6)
+    sol = stage2.solve_lm(Rt, tt, Xt, p, cfg.ba_iters, 1e-6)
+    Rt, tt, Xt, c1 = sol.R, sol.t, sol.X, sol.cost
     inv = np.argsort(order)
     return Rt.cpu().numpy()[inv], tt.cpu().numpy()[inv], Xt.cpu().numpy(), (c0, c1)
 
