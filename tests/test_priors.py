@@ -165,6 +165,34 @@ def test_depth_anything_adapter(tmp_path, tiny_depth_anything):
     assert metric.kind == "metric"
 
 
+def test_zoedepth_adapter_gives_metric_depth(tmp_path):
+    """ZoeDepth's processor post-processes with torchvision; without it the adapter removes the padding itself."""
+    from trackingworld.priors.depth_models import load_depth_model
+
+    frames = np.random.default_rng(0).integers(0, 255, (3, 48, 64, 3), dtype=np.uint8)
+    p = load_depth_model(str(tiny_models.zoedepth(tmp_path / "zoe"))).predict(frames, verbose=False)
+    assert p.kind == "metric" and p.values.shape == (3, 48, 64) and np.isfinite(p.values).all()
+    assert (p.values > 0).all() and p.focal_px is None
+
+
+def test_depth_pro_adapter_gives_depth_and_focal_length(tmp_path):
+    import torch
+
+    from trackingworld.priors.depth_models import load_depth_model
+
+    frames = np.random.default_rng(0).integers(0, 255, (2, 48, 64, 3), dtype=np.uint8)
+    model = load_depth_model(str(tiny_models.depth_pro(tmp_path / "dp", fov_deg=50.0)))
+    p = model.predict(frames, verbose=False)
+    assert p.kind == "metric" and p.values.shape == (2, 48, 64) and np.isfinite(p.values).all()
+    assert p.focal_px == pytest.approx(0.5 * 64 / np.tan(np.deg2rad(25.0)), rel=1e-4)
+    # depth = 1 / (canonical inverse depth * W / f), as Depth Pro's own post-processing
+    with torch.no_grad():
+        out = model.model(**model.processor(list(frames), return_tensors="pt"))
+    inv = torch.nn.functional.interpolate(out.predicted_depth[:1, None] * 64 / p.focal_px, size=(48, 64),
+                                          mode="bilinear", align_corners=False)[0, 0]
+    assert np.allclose(p.values[0], 1 / inv.clamp(1e-4, 1e4).numpy(), rtol=1e-4)
+
+
 def test_missing_model_is_one_line_error(tiny_scene, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     rc = main(["run", str(tiny_scene / "input" / "frames"), "--out", str(tmp_path / "o"), "--quiet",

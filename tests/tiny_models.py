@@ -50,3 +50,46 @@ def sam(out: Path) -> Path:
     tf.SamProcessor(image_processor=ip).save_pretrained(out)
     return out
 
+
+
+def zoedepth(out: Path) -> Path:
+    bb = tf.BeitConfig(hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=64,
+                       image_size=64, patch_size=16, out_features=["stage1", "stage2", "stage3", "stage4"],
+                       reshape_hidden_states=False, use_relative_position_bias=True)
+    cfg = tf.ZoeDepthConfig(backbone_config=bb, neck_hidden_sizes=[16, 32, 32, 32], fusion_hidden_size=16,
+                            reassemble_factors=[4, 2, 1, 0.5], bottleneck_features=16, num_relative_features=8,
+                            bin_embedding_dim=16, backbone_hidden_size=32,
+                            bin_configurations=[{"n_bins": 8, "min_depth": 0.001, "max_depth": 10.0, "name": "nyu"}])
+    tf.ZoeDepthForDepthEstimation(cfg).save_pretrained(out)
+    tf.ZoeDepthImageProcessor(size={"height": 64, "width": 64}, keep_aspect_ratio=True,
+                              ensure_multiple_of=16).save_pretrained(out)
+    return out
+
+
+def depth_pro(out: Path, fov_deg: float = 50.0) -> Path:
+    """A tiny Depth Pro whose field-of-view head always says ``fov_deg`` (weights zero, bias the answer). Its
+    processor config is written as JSON: DepthProImageProcessor itself cannot be built without torchvision."""
+    import json
+
+    import torch
+
+    def dino():
+        return {"model_type": "dinov2", "hidden_size": 16, "num_hidden_layers": 2, "num_attention_heads": 2,
+                "intermediate_size": 32, "image_size": 32, "patch_size": 8}
+
+    cfg = tf.DepthProConfig(fusion_hidden_size=16, patch_size=32, intermediate_hook_ids=[1, 0],
+                            intermediate_feature_dims=[16, 16], scaled_images_ratios=[0.5, 1],
+                            scaled_images_overlap_ratios=[0.0, 0.25], scaled_images_feature_dims=[16, 16],
+                            merge_padding_value=1, use_fov_model=True, num_fov_head_layers=1,
+                            image_model_config=dino(), patch_model_config=dino(), fov_model_config=dino())
+    model = tf.DepthProForDepthEstimation(cfg)
+    last = model.fov_model.head.layers[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(fov_deg)
+    model.save_pretrained(out)
+    (out / "preprocessor_config.json").write_text(json.dumps({
+        "image_processor_type": "DepthProImageProcessor", "size": {"height": 64, "width": 64},
+        "image_mean": [0.5] * 3, "image_std": [0.5] * 3, "rescale_factor": 1 / 255, "do_resize": True,
+        "do_rescale": True, "do_normalize": True, "resample": 2}))
+    return out

@@ -52,6 +52,15 @@ def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
     return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
 
 
+def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[np.ndarray, np.ndarray]:
+    """The as-static-as-possible test of tracks (uv [n,T,2] px, prior D [n,T], vis [n,T]) with the poses (R, t
+    world-to-camera) held: each track's best static point, and whether its offsets stay below epsilon.
+    Returns (still [n] bool, X [n,3] world)."""
+    pc = stage2.BAProblem.from_tracks(uv, D, vis, K, cfg, dtype, device)
+    X = stage2.fit_points(R, t, pc)
+    return ~_moving(R, t, X, pc, cfg), X.cpu().numpy()
+
+
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame."""
     return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
@@ -134,13 +143,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         # fixed: the coarse masks are dilated, and a track that fits one static point is static
         cand = np.flatnonzero((labels != STATIC) & (vis.sum(1) >= 2))
         if p.offsets and len(cand):
-            pc = stage2.BAProblem.from_tracks(uv[cand], D[cand], vis[cand], K, cfg, dtype, device)
-            Xc = stage2.fit_points(R, t, pc)
-            still = stage2.track_offset_stat(stage2.offset_norms(R, t, Xc, pc), pc, cfg.offset_stat) < cfg.epsilon
+            still, Xc = fits_static(uv[cand], D[cand], vis[cand], K, R, t, cfg, dtype, device)
             fixed = cand[still]
             dynamic[fixed] = False
             dynamic[cand[~still]] = True
-            xyz[fixed] = Xc.cpu().numpy()[still][:, None]
+            xyz[fixed] = Xc[still][:, None]
             info["classify"] = {"tested": int(len(cand)), "static": int(still.sum())}
     ok_s2 = s2[~moving_s2]
     xyz[ok_s2] = X[~moving_s2][:, None]

@@ -73,8 +73,13 @@ class HFDepthModel:
             raise InputError(f"{name}: depth models need transformers (pip install 'trackingworld[models]')") from e
         local = Path(name).is_dir()
         try:
-            self.processor = AutoImageProcessor.from_pretrained(name, local_files_only=local)
             self.model = AutoModelForDepthEstimation.from_pretrained(name, local_files_only=local).to(device).eval()
+            try:
+                self.processor = AutoImageProcessor.from_pretrained(name, local_files_only=local)
+            except (ImportError, ValueError):  # a processor that needs torchvision, which has no CPU build
+                if _model_type(self.model) != "depth_pro":
+                    raise
+                self.processor = DepthProProcessor.from_pretrained(name, local)
         except (OSError, ValueError) as e:
             raise InputError(f"{name}: cannot load the depth model ({str(e).splitlines()[0]}); models download from "
                              "the Hugging Face hub on first use, or give a local folder") from e
@@ -96,14 +101,76 @@ class HFDepthModel:
             kw = {"target_sizes": [(H, W)] * len(imgs)}
             if "source_sizes" in params:  # ZoeDepth removes its padding with the source sizes
                 kw["source_sizes"] = [(H, W)] * len(imgs)
-            for i, r in enumerate(post(outputs, **kw)):
+            try:
+                results = post(outputs, **kw)
+            except (NameError, ImportError):  # a processor whose post-processing needs torchvision (none here)
+                if getattr(outputs, "field_of_view", None) is not None:  # Depth Pro: not a plain resize
+                    raise
+                results = _post_process_plain(outputs, H, W, _model_type(self.model) == "zoedepth"
+                                              and getattr(self.processor, "do_pad", False))
+            for i, r in enumerate(results):
                 out[s + i] = r["predicted_depth"].float().cpu().numpy()
-                if r.get("focal_length") is not None:
-                    focals.append(float(r["focal_length"]))
+                f = r.get("focal_length")
+                if f is not None and np.isfinite(float(f)) and float(f) > 0:  # a broken estimate is not used
+                    focals.append(float(f))
             if verbose:
                 print(f"[depth] {self.name}: {min(s + len(imgs), T)}/{T} frames", file=sys.stderr, flush=True)
         focal = float(np.median(focals)) if focals else None
         return DepthPrediction(out, self.kind, focal, self.name)
+
+
+class DepthProProcessor:
+    """Depth Pro's pre- and post-processing without torchvision (``transformers``' DepthProImageProcessor needs
+    it, and torchvision has no CPU build here). The same steps: rescale and normalise, then a bilinear resize
+    without antialiasing to the model's square input; back at the frame size, the canonical inverse depth times
+    ``W / f`` (f from the predicted field of view) inverted to metres."""
+
+    def __init__(self, size: dict, mean, std, rescale_factor: float = 1 / 255):
+        self.size = (int(size["height"]), int(size["width"]))
+        self.mean = torch.as_tensor(mean, dtype=torch.float32)[:, None, None]
+        self.std = torch.as_tensor(std, dtype=torch.float32)[:, None, None]
+        self.rescale_factor = rescale_factor
+
+    @classmethod
+    def from_pretrained(cls, name: str, local: bool) -> DepthProProcessor:
+        from transformers.image_processing_utils import ImageProcessingMixin
+
+        cfg, _ = ImageProcessingMixin.get_image_processor_dict(name, local_files_only=local)
+        return cls(cfg.get("size", {"height": 1536, "width": 1536}), cfg.get("image_mean", [0.5] * 3),
+                   cfg.get("image_std", [0.5] * 3), cfg.get("rescale_factor", 1 / 255))
+
+    def __call__(self, images, return_tensors: str = "pt"):
+        from transformers import BatchFeature
+
+        x = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float() * self.rescale_factor
+        x = (x - self.mean) / self.std
+        x = torch.nn.functional.interpolate(x, size=self.size, mode="bilinear", align_corners=False)
+        return BatchFeature({"pixel_values": x})
+
+    def post_process_depth_estimation(self, outputs, target_sizes):
+        out = []
+        for inv, fov, (h, w) in zip(outputs.predicted_depth, outputs.field_of_view, target_sizes, strict=True):
+            f = 0.5 * w / torch.tan(0.5 * torch.deg2rad(fov))
+            inv = torch.nn.functional.interpolate((inv * w / f)[None, None], size=(h, w), mode="bilinear",
+                                                  align_corners=False)[0, 0]
+            out.append({"predicted_depth": 1.0 / inv.clamp(1e-4, 1e4), "focal_length": f})
+        return out
+
+
+def _post_process_plain(outputs, H: int, W: int, zoe_padding: bool) -> list[dict]:
+    """Depth at the frames' size (bicubic, no antialiasing: what ``transformers`` does with torchvision).
+    ZoeDepth's processor pads each side by ``int(sqrt(size / 2) * 3)`` px (reflect); that border is cut off."""
+    pred = outputs.predicted_depth.unsqueeze(1)
+    out = []
+    for d in pred:
+        if zoe_padding:
+            ph, pw = int(np.sqrt(H / 2) * 3), int(np.sqrt(W / 2) * 3)
+            d = torch.nn.functional.interpolate(d[None], size=(H + 2 * ph, W + 2 * pw), mode="bicubic",
+                                                align_corners=False)[0]
+            d = d[:, ph:ph + H, pw:pw + W]
+        d = torch.nn.functional.interpolate(d[None], size=(H, W), mode="bicubic", align_corners=False)[0]
+        out.append({"predicted_depth": d[0]})
+    return out
 
 
 class UniDepthModel:
