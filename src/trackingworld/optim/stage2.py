@@ -338,7 +338,7 @@ def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None
 
 
 def refine_focal(sol: BASolution, p: BAProblem, moving: np.ndarray, inlier_px: float = 3.0, iters: int = 30,
-                 log=None) -> BASolution:
+                 tol: float = 1e-9, log=None) -> BASolution:
     """The focal length from a stage-2 solution: bundle adjustment with the focal length free (least squares,
     no offsets) over the observations of the tracks not flagged ``moving [N]`` whose reprojection error is below
     ``inlier_px``. The full objective is not used for this: its offsets price every mover's pixel error, which
@@ -348,7 +348,7 @@ def refine_focal(sol: BASolution, p: BAProblem, moving: np.ndarray, inlier_px: f
         _, r_uv, _ = residuals(sol.R, sol.t, sol.X, p)
     keep = ~torch.as_tensor(moving, device=p.pt.device)[p.pt] & (r_uv.norm(dim=-1) < inlier_px)
     q = replace(p, pt=p.pt[keep], fr=p.fr[keep], uv=p.uv[keep], depth=p.depth[keep], offsets=False)
-    return solve_lm(sol.R, sol.t, sol.X, q, iters, 1e-9, log, refine_focal=True)
+    return solve_lm(sol.R, sol.t, sol.X, q, iters, tol, log, refine_focal=True)
 
 
 def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=None,

@@ -116,7 +116,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if not refine_focal:
                 break
             f0 = float(np.sqrt(K[0, 0] * K[1, 1]))
-            fsol = stage2.refine_focal(sol, p, moving_s2, log=log)
+            fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=cfg.lm_tol, log=log)
             K = fsol.K.cpu().numpy()
             p = replace(p, K=fsol.K)
             R, t = fsol.R, fsol.t
