@@ -250,3 +250,22 @@ def test_run_refines_an_assumed_field_of_view(tmp_path):
         assert ("focal" in report) == (mode == "auto")
     assert abs(fovs["off"] - 60) < 1e-3
     assert abs(fovs["auto"] - 80) < 0.5 * abs(fovs["off"] - 80)  # at least half the error removed
+
+
+def test_a_focal_length_that_does_not_settle_is_not_kept(tiny_scene, tmp_path, monkeypatch):
+    """A video that does not pin the focal length down makes it wander round after round: the run keeps its
+    starting focal length (simulated: each refinement returns a focal length 20% longer)."""
+    def wandering(sol, p, moving, **kw):
+        return stage2.BASolution(sol.R, sol.t, sol.X, sol.cost, p.with_focal_scale(np.log(1.2)).K)
+
+    monkeypatch.setattr(stage2, "refine_focal", wandering)
+    inp = tiny_scene / "input"
+    out = tmp_path / "o"
+    assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                 "--masks", str(inp / "masks"), "--no-self-calibration", "--quiet"]) == 0
+    focal = json.loads((out / "optim.json").read_text())["stage2"]["focal"]
+    assert not focal["settled"] and len(focal["rounds_px"]) == 3  # two rounds: the second did not contract
+    assert focal["refined_px"] == pytest.approx(focal["initial_px"])
+    W = 128
+    K_out = np.load(out / "result.npz")["intrinsics"]
+    assert np.rad2deg(2 * np.arctan2(W / 2, K_out[0, 0])) == pytest.approx(60.0, abs=1e-6)

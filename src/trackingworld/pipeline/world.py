@@ -43,6 +43,8 @@ def timed(timings: dict, name: str, verbose: bool):
 
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
+FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
+FOCAL_SETTLED = 0.02  # the last round's change must be below this for the refined focal length to be kept
 
 
 def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
@@ -106,7 +108,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         # with refine_focal: rounds of (bundle adjustment, focal length from its static inliers) until the focal
         # length settles; the Adam reference gets one round (it is the slow path by design)
         rounds = (1 if cfg.solver == "adam" else FOCAL_ROUNDS) if refine_focal else 1
-        for rnd in range(rounds):
+        history = [f_start]
+        fixed = None  # the solution with the starting focal length, kept in case the refinement does not settle
+        for _ in range(rounds):
             if cfg.solver == "adam":
                 sol = stage2.solve_adam(R, t, X, p, cfg.adam_iters[1], cfg.adam_lr, log)
             else:
@@ -115,22 +119,30 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             moving_s2 = _moving(R, t, X, p, cfg)
             if not refine_focal:
                 break
-            f0 = float(np.sqrt(K[0, 0] * K[1, 1]))
+            fixed = fixed or (K, p, R, t, X, moving_s2)
             fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=cfg.lm_tol, log=log)
             K = fsol.K.cpu().numpy()
             p = replace(p, K=fsol.K)
             R, t = fsol.R, fsol.t
             X = stage2.fit_points(R, t, p)  # every control track against the new focal length, poses held
             moving_s2 = _moving(R, t, X, p, cfg)
-            f1 = float(np.sqrt(K[0, 0] * K[1, 1]))
+            history.append(float(np.sqrt(K[0, 0] * K[1, 1])))
             if cfg.verbose:
-                print(f"[stage2] focal length, round {rnd + 1}: {f0:.1f} -> {f1:.1f} px", file=sys.stderr, flush=True)
-            if abs(np.log(f1 / f0)) < FOCAL_TOL:
+                print(f"[stage2] focal length, round {len(history) - 1}: {history[-2]:.1f} -> {history[-1]:.1f} px",
+                      file=sys.stderr, flush=True)
+            steps = np.abs(np.diff(np.log(history)))
+            if steps[-1] < FOCAL_TOL or (len(steps) > 1 and steps[-1] > FOCAL_CONTRACTION * steps[-2]):
                 break
+        settled = not refine_focal or steps[-1] < FOCAL_SETTLED
+        if not settled:  # the video does not pin the focal length down: keep the start
+            K, p, R, t, X, moving_s2 = fixed
+            if cfg.verbose:
+                print(f"[stage2] the focal length did not settle ({' -> '.join(f'{f:.0f}' for f in history)} px): "
+                      f"kept {f_start:.1f} px", file=sys.stderr, flush=True)
         info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p))}
         if refine_focal:
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": float(np.sqrt(K[0, 0] * K[1, 1])),
-                                       "rounds": rnd + 1}
+                                       "rounds_px": history, "settled": bool(settled)}
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()
         info["stage2"]["moving"] = int(moving_s2.sum())
