@@ -7,17 +7,21 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from trackingworld.config import RunConfig, Track2DConfig
 from trackingworld.eval.evaluate import evaluate_to_file
 from trackingworld.io.atomic import write_npz
+from trackingworld.io.frames import read_frames
 from trackingworld.pipeline.run import run
 from trackingworld.pipeline.tracks import track_video
 
+# the optimisation's stages in timings.json (what "optimisation [s]" adds up)
+OPT_STAGES = ("labels", "stage1", "stage2", "classify", "rebuild_static", "stage3", "video_depth")
 
-def tracks_file(frames: np.ndarray, path: Path, first_frame_only: bool = False) -> Path:
-    """Dense tracks of ``frames`` written in the CoTracker layout, for ``--tracks`` (every row shares them)."""
+
+def tracks_file(scene: Path, path: Path, first_frame_only: bool = False) -> Path:
+    """Dense tracks of a rendered scene's frames written in the CoTracker layout, for ``--tracks`` (every row
+    shares them)."""
+    frames, _ = read_frames(str(scene / "input" / "frames"))
     tr = track_video(frames, Track2DConfig(first_frame_only=first_frame_only), verbose=False)
     write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
     return path

@@ -20,7 +20,6 @@ import numpy as np
 
 from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
-from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
 
 # row: (depth and masks given?, intrinsics given?, self-calibrate?, stage-2 focal refinement)
@@ -48,8 +47,7 @@ def main(argv=None) -> int:
     for fov in a.fovs:
         scene = render_and_write(work / f"scene{fov:g}", a.preset, a.seed, fov_deg=fov, verbose=False)
         inp = scene / "input"
-        frames, _ = read_frames(str(inp / "frames"))
-        tracks = tracks_file(frames, work / f"tracks{fov:g}.npz")
+        tracks = tracks_file(scene, work / f"tracks{fov:g}.npz")
         for name, (priors_given, k_given, selfcal, refine) in ROWS.items():
             kw = ({"depth": str(inp / "depth.npy"), "masks": str(inp / "masks")} if priors_given else {})
             if k_given:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
@@ -36,7 +36,6 @@ ROWS = {
     "every static track optimised (no speed-up)": ("trackingworld", {"downsample_cell": 0}, False),
     "baseline (camera-centric)": ("baseline", {}, False),
 }
-OPT_STAGES = ("labels", "stage1", "stage2", "classify", "rebuild_static", "stage3", "video_depth")
 
 
 def main(argv=None) -> int:
@@ -49,7 +48,7 @@ def main(argv=None) -> int:
     scene = render_and_write(work / "scene", a.preset, a.seed)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
-    tracks = {ff: tracks_file(frames, work / ("tracks_first.npz" if ff else "tracks.npz"), ff) for ff in (False, True)}
+    tracks = {ff: tracks_file(scene, work / ("tracks_first.npz" if ff else "tracks.npz"), ff) for ff in (False, True)}
     results = {}
     for name, (method, opts, tef_off) in ROWS.items():
         if a.quick and opts.get("solver") == "adam":

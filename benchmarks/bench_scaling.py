@@ -18,12 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
-from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
-
-OPT_STAGES = ("labels", "stage1", "stage2", "classify", "rebuild_static", "stage3", "video_depth")
 
 
 def cut_scene(scene: Path, out: Path, T: int) -> Path:
@@ -65,8 +62,7 @@ def main(argv=None) -> int:
     for T in sorted(a.frames):
         scene = cut_scene(full, work / f"scene{T}", T)
         inp = scene / "input"
-        frames, _ = read_frames(str(inp / "frames"))
-        tracks = tracks_file(frames, work / f"tracks{T}.npz")
+        tracks = tracks_file(scene, work / f"tracks{T}.npz")
         cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
                                            masks=str(inp / "masks"), intrinsics=str(inp / "intrinsics.txt")),
                         track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)),

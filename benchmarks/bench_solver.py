@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     scene = render_and_write(work / "scene", a.preset, a.seed, verbose=False)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
-    tracks = tracks_file(frames, work / "tracks.npz")
+    tracks = tracks_file(scene, work / "tracks.npz")
     results = {}
     for name, solver in SOLVERS.items():
         cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),

@@ -37,6 +37,11 @@ def unproject(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x * depth, y * depth, depth], axis=-1)
 
 
+def focal_length(K: np.ndarray) -> float:
+    """One focal length (px) of K ``[3,3]``: the geometric mean of fx and fy."""
+    return float(np.sqrt(K[0, 0] * K[1, 1]))
+
+
 def nearest_pixel(uv: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
     """Integer (x [M], y [M]) of the pixel nearest to ``uv`` [M,2], clamped to a W x H image."""
     x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)

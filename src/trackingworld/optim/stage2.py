@@ -78,17 +78,20 @@ class BAProblem:
         s = torch.exp(torch.as_tensor(phi, dtype=self.K.dtype, device=self.K.device))
         diag = torch.stack([s, s, torch.ones_like(s)])
         scale = torch.diag_embed(diag - 1) + 1  # fx and fy scaled, principal point and skew kept
-        kf = float(self.focal) if self.kernel_focal is None else self.kernel_focal
-        return replace(self, K=self.K * scale, kernel_focal=kf)
+        return replace(self, K=self.K * scale, kernel_focal=float(self.kernel_f))
 
     @property
     def focal(self) -> torch.Tensor:
         return torch.sqrt(self.K[0, 0] * self.K[1, 1])
 
+    @property
+    def kernel_f(self):
+        """Focal length (px) that turns the offsets' metres into the kernel's pixels (see ``kernel_focal``)."""
+        return self.focal if self.kernel_focal is None else self.kernel_focal
+
     def thresholds(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Huber thresholds from the eliminated offsets: pixels [M] and depth-residual units [M]."""
-        f = self.focal if self.kernel_focal is None else self.kernel_focal
-        c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * f)
+        c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * self.kernel_f)
         c_d = self.lambda_asap * self.depth_scale(z) / (2 * max(self.lambda_dc, 1e-12))
         return c_uv, c_d
 
@@ -131,7 +134,7 @@ def offset_norms(R, t, X, p: BAProblem) -> torch.Tensor:
     if not p.offsets:
         return torch.zeros_like(r_d)
     c_uv, c_d = p.thresholds(Y[:, 2])
-    o_t = (r_uv.norm(dim=-1) - c_uv).clamp_min(0) * Y[:, 2].clamp_min(1e-3) / (p.kernel_focal or p.focal)
+    o_t = (r_uv.norm(dim=-1) - c_uv).clamp_min(0) * Y[:, 2].clamp_min(1e-3) / p.kernel_f
     o_r = (r_d.abs() - c_d).clamp_min(0) * p.depth_scale(Y[:, 2]) if p.lambda_dc > 0 else torch.zeros_like(o_t)
     return o_t + o_r
 
@@ -147,7 +150,7 @@ def explicit_objective(R, t, X, O, p: BAProblem) -> torch.Tensor:
     o_t = (dY - o_r[:, None] * ray).norm(dim=-1)
     asap = (o_t + o_r.abs()) if p.offsets else torch.zeros_like(o_r)
     if p.kernel_focal is not None:  # a refined focal: the tangential offset priced at the starting focal
-        asap = asap + o_t * (p.focal / p.kernel_focal - 1)
+        asap = asap + o_t * (p.focal / p.kernel_f - 1)
     return (p.lambda_ba * (r_uv**2).sum(-1) + p.lambda_dc * r_d**2 + p.lambda_asap * asap).mean()
 
 

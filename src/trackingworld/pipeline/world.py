@@ -14,7 +14,7 @@ import torch
 
 from trackingworld.config import OptimConfig, RunConfig
 from trackingworld.errors import InputError
-from trackingworld.geometry import invert_pose, transform, unproject
+from trackingworld.geometry import focal_length, invert_pose, transform, unproject
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2, stage3
 from trackingworld.optim.densify import cell_representatives, propagate_ratio, ratio_maps, thin_references
@@ -103,13 +103,13 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         R, t = lie.c2w_to_w2c(poses, dtype, device)
         X0 = stage2.init_points(R, t, p)
         loss0 = float(stage2.loss(R, t, X0, p))
-        f_start = float(np.sqrt(K[0, 0] * K[1, 1]))
+        f_start = focal_length(K)
         X = X0
         # with refine_focal: rounds of (bundle adjustment, focal length from its static inliers) until the focal
         # length settles; the Adam reference gets one round (it is the slow path by design)
         rounds = (1 if cfg.solver == "adam" else FOCAL_ROUNDS) if refine_focal else 1
         history = [f_start]
-        fixed = None  # the solution with the starting focal length, kept in case the refinement does not settle
+        start = None  # the solution with the starting focal length, kept in case the refinement does not settle
         for _ in range(rounds):
             if cfg.solver == "adam":
                 sol = stage2.solve_adam(R, t, X, p, cfg.adam_iters[1], cfg.adam_lr, log)
@@ -119,14 +119,15 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             moving_s2 = _moving(R, t, X, p, cfg)
             if not refine_focal:
                 break
-            fixed = fixed or (K, p, R, t, X, moving_s2)
+            if start is None:
+                start = (K, p, R, t, X, moving_s2)
             fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=cfg.lm_tol, log=log)
             K = fsol.K.cpu().numpy()
             p = replace(p, K=fsol.K)
             R, t = fsol.R, fsol.t
             X = stage2.fit_points(R, t, p)  # every control track against the new focal length, poses held
             moving_s2 = _moving(R, t, X, p, cfg)
-            history.append(float(np.sqrt(K[0, 0] * K[1, 1])))
+            history.append(focal_length(K))
             if cfg.verbose:
                 print(f"[stage2] focal length, round {len(history) - 1}: {history[-2]:.1f} -> {history[-1]:.1f} px",
                       file=sys.stderr, flush=True)
@@ -135,13 +136,13 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                 break
         settled = not refine_focal or steps[-1] < FOCAL_SETTLED
         if not settled:  # the video does not pin the focal length down: keep the start
-            K, p, R, t, X, moving_s2 = fixed
+            K, p, R, t, X, moving_s2 = start
             if cfg.verbose:
                 print(f"[stage2] the focal length did not settle ({' -> '.join(f'{f:.0f}' for f in history)} px): "
                       f"kept {f_start:.1f} px", file=sys.stderr, flush=True)
         info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p))}
         if refine_focal:
-            info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": float(np.sqrt(K[0, 0] * K[1, 1])),
+            info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from trackingworld.errors import InputError
+from trackingworld.geometry import focal_length
 
 # short names for the well-known checkpoints (any hub id or local folder works too)
 DEPTH_MODELS = {
@@ -199,7 +200,7 @@ class UniDepthModel:
             out[t] = pred["depth"].reshape(H, W).float().cpu().numpy()
             if "intrinsics" in pred:
                 Kp = pred["intrinsics"].reshape(3, 3).float().cpu().numpy()
-                focals.append(float(np.sqrt(Kp[0, 0] * Kp[1, 1])))
+                focals.append(focal_length(Kp))
             if verbose and (t + 1) % 8 == 0:
                 print(f"[depth] {self.name}: {t + 1}/{T} frames", file=sys.stderr, flush=True)
         return DepthPrediction(out, "metric", float(np.median(focals)) if focals else None, self.name)

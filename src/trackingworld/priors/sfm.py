@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import invert_pose, pose_from_rt, project, transform, unproject
+from trackingworld.geometry import focal_length, invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import cell_representatives
 from trackingworld.priors.fill import densify
@@ -183,7 +183,7 @@ def _bundle_adjust(R, t, X, uv, vis, K, ref: int, cfg: SfMConfig, device="cpu"):
     order = [ref] + [f for f in range(T) if f != ref]  # the solver keeps its frame 0 fixed
     z = _camera_depths(R, t, X)
     med_z = float(np.median(z[vis]))
-    f = float(np.sqrt(K[0, 0] * K[1, 1]))
+    f = focal_length(K)
     # lambda_asap so that the eliminated offsets make a Huber kernel of threshold reproj_px at the median depth
     ocfg = OptimConfig(lambda_dc=0.0, lambda_asap=2 * cfg.reproj_px * f / med_z, no_depth_consistency=True)
     p = stage2.BAProblem.from_tracks(uv[:, order], z[:, order], vis[:, order], K, ocfg, torch.float64, device)
