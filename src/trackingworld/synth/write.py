@@ -75,9 +75,10 @@ def sample_queries(scene: Scene, inst: np.ndarray, moving_ids: np.ndarray, rng) 
 
 def render_and_write(out: str | os.PathLike, preset: str = "default", seed: int = 0,
                      frames: int | None = None, size: tuple[int, int] | None = None,
-                     verbose: bool = True, fov_deg: float | None = None) -> Path:
-    """Render a scene and write inputs + ground truth to ``out``. Returns ``out``."""
-    overrides = {}
+                     verbose: bool = True, fov_deg: float | None = None, **scene: float) -> Path:
+    """Render a scene and write inputs + ground truth to ``out``. Returns ``out``. Further keywords override
+    fields of the preset's :class:`SceneConfig` (e.g. ``cam_speed=0.15``)."""
+    overrides = dict(scene)
     if fov_deg:
         overrides["fov_deg"] = float(fov_deg)
     if frames:

@@ -1,5 +1,13 @@
 """A weight-free tracker: OpenCV DIS optical flow between consecutive frames, chained over time in both
-directions from each query frame, with forward-backward consistency as the occlusion test."""
+directions from each query frame.
+
+A step is observed when the forward-backward flow check passes, the (slightly blurred) colour at the new
+position matches the old one, and the point stays in the image. A point that fails a step (occluded, or its
+flow is unreliable) is carried by the median displacement of the neighbours that moved like it before the
+gap and are still observed (a support grid is tracked with every query frame so that sparse queries have
+neighbours too); it is found again when the flow there agrees with that prediction, and its position is then
+re-anchored by pyramidal Lucas-Kanade against its patch in the query frame, which removes the error the
+prediction accumulated through the gap."""
 
 from __future__ import annotations
 
@@ -7,6 +15,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from trackingworld.progress import Progress
 from trackingworld.tracking2d.base import TrackResult
@@ -17,7 +26,19 @@ class FlowTrackerConfig:
     preset: str = "fine"  # DIS preset: ultrafast | fast | medium | fine
     fb_abs_px: float = 2.0  # forward-backward error allowed: abs + rel * |flow|
     fb_rel: float = 0.05
+    max_colour_diff: float = 10.0  # grey levels (0-255, max over RGB, sigma-1 blur) a step may change; 0: off
     max_gap: int = 16  # frames a point may stay unobserved before it is lost for good
+    neighbours: int = 8  # neighbours that carry a point through a gap
+    min_neighbours: int = 2  # fewer observed neighbours: the point keeps its last velocity
+    neighbour_radius: float = 0.075  # of the image's longer side
+    neighbour_vel_abs_px: float = 0.5  # neighbours move like the point: |dv| < abs + rel * |v| (smoothed v)
+    neighbour_vel_rel: float = 0.1
+    velocity_smoothing: float = 0.5  # exponential smoothing of the observed velocity
+    support_spacing: float = 0.025  # support grid tracked with every query frame, of the longer side; 0: none
+    relocate_win: int = 15  # Lucas-Kanade window (px) that re-anchors a point found after a gap; 0: off
+    relocate_levels: int = 2
+    relocate_max_shift_px: float = 16.0
+    relocate_max_err: float = 20.0  # mean absolute grey difference over the window
     verbose: bool = False
 
 
@@ -70,67 +91,161 @@ def sample_flow(flow: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return sample_image(flow, pts)
 
 
+@dataclass
+class _Video:
+    """What the tracker computes once per video: pairwise flows, grey frames (for Lucas-Kanade) and
+    sigma-1 blurred colour frames (for the colour check), all at the frames' resolution."""
+
+    key: int
+    fwd: np.ndarray  # [T-1,H,W,2]
+    bwd: np.ndarray  # [T-1,H,W,2]
+    gray: list  # T x [H,W] uint8
+    blur: np.ndarray  # [T,H,W,3] uint8
+
+
+def pick_neighbours(p: np.ndarray, vel: np.ndarray, who: np.ndarray, cand: np.ndarray, k: int, radius: float,
+                    vel_abs: float, vel_rel: float) -> np.ndarray:
+    """For the points ``who`` up to ``k`` of the points ``cand`` (indices into ``p [M,2]``) within ``radius``
+    px whose velocity ``vel [M,2]`` is close to theirs. Returns ``[len(who),k]`` indices, -1 where none."""
+    out = np.full((len(who), k), -1, np.int64)
+    if not len(cand) or not len(who) or k == 0:
+        return out
+    kk = min(2 * k, len(cand))
+    d, j = cKDTree(p[cand]).query(p[who], k=kk, distance_upper_bound=radius)
+    d, j = d.reshape(len(who), kk), j.reshape(len(who), kk)
+    jj = cand[np.minimum(j, len(cand) - 1)]
+    valid = np.isfinite(d)
+    dv = np.linalg.norm(vel[jj] - vel[who][:, None], axis=-1)
+    valid &= dv < vel_abs + vel_rel * np.linalg.norm(vel[who], axis=1)[:, None]
+    order = np.argsort(~valid, axis=1, kind="stable")[:, :k]
+    jj = np.take_along_axis(jj, order, 1)
+    valid = np.take_along_axis(valid, order, 1)
+    out[:, : jj.shape[1]] = np.where(valid, jj, -1)
+    return out
+
+
 class FlowTracker:
     """Chained optical flow with occlusion handling, in both directions of time from each query frame.
 
-    A step is observed when the forward-backward check passes and the point stays in the image. Through a
-    failed step the point moves with its last observed velocity (the estimate through occlusion) and is
-    marked not visible; it is observed again when the check passes and the flow agrees with that velocity.
-    After ``max_gap`` failed steps in a row, or once it leaves the image, it is lost for good.
+    See the module docstring for the rules; after ``max_gap`` failed steps in a row, or once it leaves the
+    image, a point is lost for good. Positions where a point is not visible are the tracker's estimate
+    (neighbour-carried or constant velocity), not observations.
     """
 
     def __init__(self, config: FlowTrackerConfig | None = None):
         self.config = config or FlowTrackerConfig()
-        self._cache: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._video: _Video | None = None
+
+    def _prepare(self, frames: np.ndarray) -> _Video:
+        if self._video is None or self._video.key != id(frames):
+            fwd, bwd = pairwise_flows(frames, self.config.preset, self.config.verbose)
+            self._video = _Video(id(frames), fwd, bwd, [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames],
+                                 np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in frames]))
+        return self._video
 
     def flows(self, frames: np.ndarray):
-        key = id(frames)
-        if self._cache is None or self._cache[0] != key:
-            self._cache = (key, *pairwise_flows(frames, self.config.preset, self.config.verbose))
-        return self._cache[1], self._cache[2]
+        """Forward and backward pairwise flows ``[T-1,H,W,2]`` of ``frames`` (computed once per video)."""
+        v = self._prepare(frames)
+        return v.fwd, v.bwd
 
-    def _propagate(self, p0, t0, direction, flows_a, flows_b, T, H, W, tracks, vis, sel):
+    def _relocate(self, video: _Video, t_src: int, p_src: np.ndarray, t_dst: int, q: np.ndarray):
+        """Refine positions ``q [M,2]`` in frame ``t_dst`` by pyramidal Lucas-Kanade from the points' patches
+        at ``p_src [M,2]`` in frame ``t_src``. Returns the positions ``[M,2]`` and success ``[M]``."""
         c = self.config
+        r, st, er = cv2.calcOpticalFlowPyrLK(
+            video.gray[t_src], video.gray[t_dst], p_src.reshape(-1, 1, 2).astype(np.float32),
+            q.reshape(-1, 1, 2).astype(np.float32).copy(), winSize=(c.relocate_win, c.relocate_win),
+            maxLevel=c.relocate_levels, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+        r = r.reshape(-1, 2)
+        good = (st.ravel() == 1) & (er.ravel() < c.relocate_max_err)
+        good &= np.linalg.norm(r - q, axis=1) < c.relocate_max_shift_px
+        return np.where(good[:, None], r, q), good
+
+    def _propagate(self, video: _Video, p0: np.ndarray, t0: int, direction: int, tracks, vis, sel) -> None:
+        """Track ``p0 [M,2]`` from frame ``t0`` one way in time; writes the first ``len(sel)`` points into
+        ``tracks[sel]`` / ``vis[sel]`` (the rest are support points)."""
+        c = self.config
+        T, H, W = video.blur.shape[:3]
+        flows_a, flows_b = (video.fwd, video.bwd) if direction == 1 else (video.bwd, video.fwd)
+        M, K = len(p0), c.neighbours
+        radius = c.neighbour_radius * max(H, W)
         p = p0.copy()
-        v = np.zeros_like(p)
-        gap = np.zeros(len(p), int)
-        lost = np.zeros(len(p), bool)
+        v = np.zeros_like(p)  # last step
+        va = np.zeros_like(p)  # smoothed velocity of the observed steps
+        gap = np.zeros(M, int)
+        lost = np.zeros(M, bool)
+        nbr = np.full((M, K), -1, np.int64)  # neighbours carrying a point through its gap
+        nbr_ref = np.zeros((M, K, 2), np.float32)  # their positions when the gap began
+        p_ref = p.copy()  # the point's last observed position
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
             fa = sample_flow(flows_a[k], p)
             q = p + fa
             err = np.linalg.norm(fa + sample_flow(flows_b[k], q), axis=1)
-            ok = err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)
-            # after a gap, the flow must also agree with the velocity carried through it
-            ok &= (gap == 0) | (np.linalg.norm(fa - v, axis=1) < c.fb_abs_px + 0.25 * np.linalg.norm(v, axis=1))
-            ok &= ~lost
-            step = np.where(ok[:, None], fa, v)
-            v = np.where(ok[:, None], fa, v)
-            p = p + step
+            ok = (err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)) & ~lost
+            if c.max_colour_diff > 0:
+                ca = sample_image(video.blur[t], p).astype(np.float32)
+                cb = sample_image(video.blur[t + direction], q).astype(np.float32)
+                ok &= np.abs(ca - cb).max(1) < c.max_colour_diff
+            in_gap = gap > 0
+            carriers = ok & ~in_gap  # observed in both frames
+            new = ~ok & ~in_gap & ~lost  # points whose gap begins now
+            if new.any():
+                who = np.flatnonzero(new)
+                nbr[who] = pick_neighbours(p, va, who, np.flatnonzero(carriers), K, radius,
+                                           c.neighbour_vel_abs_px, c.neighbour_vel_rel)
+                nbr_ref[who] = p[np.maximum(nbr[who], 0)]
+                p_ref[who] = p[who]
+            # prediction through a gap: the median displacement of the neighbours observed now
+            pred = p + v
+            gp = np.flatnonzero((in_gap | new) & ~lost)
+            if gp.size:
+                nb = nbr[gp]
+                has = (nb >= 0) & carriers[np.maximum(nb, 0)]
+                disp = np.where(has[..., None], q[np.maximum(nb, 0)] - nbr_ref[gp], np.nan)
+                use = has.sum(1) >= c.min_neighbours
+                if use.any():
+                    pred[gp[use]] = p_ref[gp[use]] + np.nanmedian(disp[use], axis=1)
+            # after a gap the flow must agree with the predicted step, and the point is re-anchored
+            step = pred - p
+            ok &= ~in_gap | (np.linalg.norm(fa - step, axis=1) < c.fb_abs_px + 0.25 * np.linalg.norm(step, axis=1))
+            back = np.flatnonzero(ok & in_gap)
+            if c.relocate_win and back.size:
+                q[back], good = self._relocate(video, t0, p0[back], t + direction, q[back])
+                ok[back[~good]] = False
+            p_new = np.where(ok[:, None], q, pred)
+            v = np.where(ok[:, None], fa, p_new - p)
+            smooth = np.where(t == t0, 0.0, c.velocity_smoothing)
+            va = np.where(carriers[:, None], smooth * va + (1 - smooth) * v, va)
+            p = p_new
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
             gap = np.where(ok, 0, gap + 1)
             lost |= (gap > c.max_gap) | ~inside
             t += direction
-            tracks[sel, t] = p
-            vis[sel, t] = ok & inside & ~lost
+            n = len(sel)
+            tracks[sel, t] = p[:n]
+            vis[sel, t] = (ok & inside & ~lost)[:n]
 
     def track(self, frames: np.ndarray, queries: np.ndarray) -> TrackResult:
+        """Tracks ``[N,T,2]`` of ``queries [N,3]`` (t, x, y) in ``frames [T,H,W,3]``, both ways in time."""
         T, H, W = frames.shape[:3]
-        fwd, bwd = self.flows(frames)
+        video = self._prepare(frames)
         N = queries.shape[0]
         tracks = np.zeros((N, T, 2), np.float32)
         vis = np.zeros((N, T), bool)
         qt = queries[:, 0].round().astype(int)
+        spacing = max(1, round(self.config.support_spacing * max(H, W)))
         for t0 in np.unique(qt):
             sel = np.flatnonzero(qt == t0)
             p0 = queries[sel, 1:3].astype(np.float32)
             tracks[sel, t0] = p0
             vis[sel, t0] = True
-            self._propagate(p0, t0, 1, fwd, bwd, T, H, W, tracks, vis, sel)
-            self._propagate(p0, t0, -1, bwd, fwd, T, H, W, tracks, vis, sel)
-        # where a point is not observed (occluded, lost, outside the image) its position is the
-        # constant-velocity extrapolation from its last observed step
+            if self.config.support_spacing > 0 and self.config.neighbours > 0:
+                p0 = np.concatenate([p0, grid_queries(t0, H, W, spacing)[:, 1:].astype(np.float32)])
+            self._propagate(video, p0, t0, 1, tracks, vis, sel)
+            self._propagate(video, p0, t0, -1, tracks, vis, sel)
         return TrackResult(tracks, vis, vis.astype(np.float32), queries.astype(np.float32))
 
 

@@ -91,8 +91,13 @@ def apply_weights(pix: np.ndarray, idx: np.ndarray, w: np.ndarray, grid_tracks: 
         b = min(a + chunk, M)
         i = torch.as_tensor(idx[a:b], device=dev)
         ww = torch.as_tensor(w[a:b], device=dev)
-        d = (ww[..., None, None] * disp[i]).sum(1)  # [m,T,2]
+        wv = ww[..., None] * gv[i]  # [m,K,T]: weights of the neighbours visible in each frame
+        sv = wv.sum(1)  # [m,T]
+        # positions from the visible neighbours only (an occluded neighbour's position is a guess);
+        # where none is visible, from all of them
+        wn = torch.where(sv[:, None] > 1e-6, wv / sv.clamp_min(1e-6)[:, None], ww[..., None].expand_as(wv))
+        d = (wn[..., None] * disp[i]).sum(1)  # [m,T,2]
         p = torch.as_tensor(pix[a:b], dtype=torch.float32, device=dev)[:, None]
         out[a:b] = (p + d).cpu().numpy()
-        vis[a:b] = (ww[..., None] * gv[i]).sum(1).cpu().numpy()
+        vis[a:b] = sv.cpu().numpy()
     return out, vis
