@@ -31,6 +31,7 @@ class FlowTrackerConfig:
     neighbours: int = 8  # neighbours that carry a point through a gap
     min_neighbours: int = 2  # fewer observed neighbours: the point keeps its last velocity
     neighbour_radius: float = 0.075  # of the image's longer side
+    max_candidates: int = 4096  # observed points the neighbours are picked from (evenly thinned)
     neighbour_vel_abs_px: float = 0.5  # neighbours move like the point: |dv| < abs + rel * |v| (smoothed v)
     neighbour_vel_rel: float = 0.1
     velocity_smoothing: float = 0.5  # exponential smoothing of the observed velocity
@@ -156,7 +157,7 @@ class FlowTracker:
             video.gray[t_src], video.gray[t_dst], p_src.reshape(-1, 1, 2).astype(np.float32),
             q.reshape(-1, 1, 2).astype(np.float32).copy(), winSize=(c.relocate_win, c.relocate_win),
             maxLevel=c.relocate_levels, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.03))
         r = r.reshape(-1, 2)
         good = (st.ravel() == 1) & (er.ravel() < c.relocate_max_err)
         good &= np.linalg.norm(r - q, axis=1) < c.relocate_max_shift_px
@@ -194,7 +195,9 @@ class FlowTracker:
             new = ~ok & ~in_gap & ~lost  # points whose gap begins now
             if new.any():
                 who = np.flatnonzero(new)
-                nbr[who] = pick_neighbours(p, va, who, np.flatnonzero(carriers), K, radius,
+                cand = np.flatnonzero(carriers)
+                cand = cand[:: -(-len(cand) // c.max_candidates)]  # thinned: the kd-tree is built every step
+                nbr[who] = pick_neighbours(p, va, who, cand, K, radius,
                                            c.neighbour_vel_abs_px, c.neighbour_vel_rel)
                 nbr_ref[who] = p[np.maximum(nbr[who], 0)]
                 p_ref[who] = p[who]

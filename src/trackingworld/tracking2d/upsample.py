@@ -91,12 +91,14 @@ def apply_weights(pix: np.ndarray, idx: np.ndarray, w: np.ndarray, grid_tracks: 
         b = min(a + chunk, M)
         i = torch.as_tensor(idx[a:b], device=dev)
         ww = torch.as_tensor(w[a:b], device=dev)
+        di = disp[i]  # [m,K,T,2]
         wv = ww[..., None] * gv[i]  # [m,K,T]: weights of the neighbours visible in each frame
         sv = wv.sum(1)  # [m,T]
         # positions from the visible neighbours only (an occluded neighbour's position is a guess);
         # where none is visible, from all of them
-        wn = torch.where(sv[:, None] > 1e-6, wv / sv.clamp_min(1e-6)[:, None], ww[..., None].expand_as(wv))
-        d = (wn[..., None] * disp[i]).sum(1)  # [m,T,2]
+        d_vis = torch.einsum("mkt,mktc->mtc", wv, di) / sv.clamp_min(1e-6)[..., None]
+        d_all = torch.einsum("mk,mktc->mtc", ww, di)
+        d = torch.where((sv > 1e-6)[..., None], d_vis, d_all)  # [m,T,2]
         p = torch.as_tensor(pix[a:b], dtype=torch.float32, device=dev)[:, None]
         out[a:b] = (p + d).cpu().numpy()
         vis[a:b] = sv.cpu().numpy()
