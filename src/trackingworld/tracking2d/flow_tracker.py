@@ -196,7 +196,7 @@ class FlowTracker:
             if new.any():
                 who = np.flatnonzero(new)
                 cand = np.flatnonzero(carriers)
-                cand = cand[:: -(-len(cand) // c.max_candidates)]  # thinned: the kd-tree is built every step
+                cand = cand[:: max(1, -(-len(cand) // c.max_candidates))]  # thinned: a kd-tree is built every step
                 nbr[who] = pick_neighbours(p, va, who, cand, K, radius,
                                            c.neighbour_vel_abs_px, c.neighbour_vel_rel)
                 nbr_ref[who] = p[np.maximum(nbr[who], 0)]
