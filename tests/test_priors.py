@@ -150,8 +150,10 @@ def test_sfm_on_rendered_scene(tmp_path, small_scene):
     assert err(r.depth) < 0.15  # weight-free, arbitrary scale (measured 0.040)
     assert camera_metrics(r.poses_c2w, gt["poses_c2w"])["ate_pct_path"] < 3  # (measured 0.26)
     # the slow camera: too little parallax, and SfM says so instead of reconstructing noise
-    _, inp, slow = small_scene
-    assert not sfm_depth(slow, static_tracks(slow, masks), gt["K"], masks, SfMConfig(verbose=False)).ok
+    slow_scene, _, slow = small_scene
+    slow_masks = load_masks(slow_scene / "input" / "masks", 20)
+    slow_K = np.load(slow_scene / "gt.npz")["K"]
+    assert not sfm_depth(slow, static_tracks(slow, slow_masks), slow_K, slow_masks, SfMConfig(verbose=False)).ok
 
 
 # --- model adapters on tiny random models (no download) ---

@@ -58,9 +58,9 @@ def _dis(preset: str):
     return dis
 
 
-def pairwise_flows(frames: np.ndarray, preset: str = "fine", verbose: bool = False):
-    """Forward flows ``fwd[t]`` (t -> t+1) and backward flows ``bwd[t]`` (t+1 -> t), each [T-1,H,W,2]."""
-    gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False):
+    """Forward flows ``fwd[t]`` (t -> t+1) and backward flows ``bwd[t]`` (t+1 -> t), each [T-1,H,W,2], of the
+    grey frames ``gray`` (T x [H,W] uint8)."""
     dis = _dis(preset)
     T = len(gray)
     fwd = np.zeros((max(T - 1, 0),) + gray[0].shape + (2,), np.float32)
@@ -139,8 +139,9 @@ class FlowTracker:
 
     def _prepare(self, frames: np.ndarray) -> _Video:
         if self._video is None or self._video.key != id(frames):
-            fwd, bwd = pairwise_flows(frames, self.config.preset, self.config.verbose)
-            self._video = _Video(id(frames), fwd, bwd, [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames],
+            gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+            fwd, bwd = pairwise_flows(gray, self.config.preset, self.config.verbose)
+            self._video = _Video(id(frames), fwd, bwd, gray,
                                  np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in frames]))
         return self._video
 
@@ -220,7 +221,7 @@ class FlowTracker:
                 ok[back[~good]] = False
             p_new = np.where(ok[:, None], q, pred)
             v = np.where(ok[:, None], fa, p_new - p)
-            smooth = np.where(t == t0, 0.0, c.velocity_smoothing)
+            smooth = 0.0 if t == t0 else c.velocity_smoothing
             va = np.where(carriers[:, None], smooth * va + (1 - smooth) * v, va)
             p = p_new
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
