@@ -12,8 +12,9 @@ import numpy as np
 class TrackResult:
     """2D tracks of N query points over T frames.
 
-    tracks: [N,T,2] float32 pixels (x right, y down, pixel centres at integers); finite everywhere,
-        held at the last observed position where the point is not visible.
+    tracks: [N,T,2] float32 pixels (x right, y down, pixel centres at integers); finite everywhere. Where
+        the point is not visible: the tracker's estimate (carried through occlusion), or, for trackers and
+        files without one, the last observed position (:func:`hold_invisible`).
     visible: [N,T] bool. confidence: [N,T] float32 in [0,1]. queries: [N,3] float32 (t, x, y).
     """
 

@@ -114,7 +114,10 @@ class CoTrackerTracker:
         qt = np.round(queries[:, 0]).astype(int)
         tracks[np.arange(N), qt] = queries[:, 1:3]
         vis[np.arange(N), qt] = True
-        tracks = hold_invisible(tracks, vis)
+        # CoTracker estimates occluded points too: keep its estimate, hold only where it is not finite
+        bad = ~np.isfinite(tracks).all(-1)
+        if bad.any():
+            tracks = np.where(bad[..., None], hold_invisible(np.nan_to_num(tracks), vis & ~bad), tracks)
         if self.cfg.verbose:
             print(f"[cotracker] {N} queries over {T} frames", file=sys.stderr, flush=True)
         return TrackResult(tracks, vis, vis.astype(np.float32), np.asarray(queries, np.float32))

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from trackingworld.progress import Progress
-from trackingworld.tracking2d.base import TrackResult, hold_invisible
+from trackingworld.tracking2d.base import TrackResult
 from trackingworld.tracking2d.upsample import UpsampleConfig, apply_weights, neighbour_weights
 
 
@@ -137,7 +137,6 @@ class DenseTracker:
                 vis &= inside
                 vis[:, t] = True
                 tr[:, t] = pix
-                tr = hold_invisible(tr, vis)
                 splat_coverage(covered, tr, vis, cfg.cover_radius)
                 q = np.concatenate([np.full((len(pix), 1), t, np.float32), pix], 1)
                 parts.append(TrackResult(tr, vis, np.clip(vw, 0, 1).astype(np.float32), q))

@@ -7,7 +7,11 @@ flow is unreliable) is carried by the median displacement of the neighbours that
 gap and are still observed (a support grid is tracked with every query frame so that sparse queries have
 neighbours too); it is found again when the flow there agrees with that prediction, and its position is then
 re-anchored by pyramidal Lucas-Kanade against its patch in the query frame, which removes the error the
-prediction accumulated through the gap."""
+prediction accumulated through the gap. Where the flow does not agree (it often smooths across the occluder
+that just left), the point is also looked for directly: Lucas-Kanade from the query patch, started at the
+predicted position, finds it when the window matches closely and the colour there is the query colour.
+Positions in frames where a point is not visible are these predictions, not observations; they are kept
+(not held at the last observed position) because they are the better guess of where the point is."""
 
 from __future__ import annotations
 
@@ -40,6 +44,10 @@ class FlowTrackerConfig:
     relocate_levels: int = 2
     relocate_max_shift_px: float = 16.0
     relocate_max_err: float = 20.0  # mean absolute grey difference over the window
+    refind: bool = True  # a point in a gap is also looked for by Lucas-Kanade at its predicted position
+    refind_max_err: float = 10.0  # ... and found when the window matches its query patch this well
+    refind_win: int = 11
+    refind_every: int = 1  # ... every this many frames of the gap
     verbose: bool = False
 
 
@@ -150,17 +158,19 @@ class FlowTracker:
         v = self._prepare(frames)
         return v.fwd, v.bwd
 
-    def _relocate(self, video: _Video, t_src: int, p_src: np.ndarray, t_dst: int, q: np.ndarray):
+    def _relocate(self, video: _Video, t_src: int, p_src: np.ndarray, t_dst: int, q: np.ndarray,
+                  max_err: float | None = None, win: int | None = None):
         """Refine positions ``q [M,2]`` in frame ``t_dst`` by pyramidal Lucas-Kanade from the points' patches
-        at ``p_src [M,2]`` in frame ``t_src``. Returns the positions ``[M,2]`` and success ``[M]``."""
+        at ``p_src [M,2]`` in frame ``t_src``. Returns the positions ``[M,2]`` and success ``[M]`` (converged,
+        mean absolute grey difference below ``max_err``, default ``relocate_max_err``, shift bounded)."""
         c = self.config
         r, st, er = cv2.calcOpticalFlowPyrLK(
             video.gray[t_src], video.gray[t_dst], p_src.reshape(-1, 1, 2).astype(np.float32),
-            q.reshape(-1, 1, 2).astype(np.float32).copy(), winSize=(c.relocate_win, c.relocate_win),
+            q.reshape(-1, 1, 2).astype(np.float32).copy(), winSize=(win or c.relocate_win,) * 2,
             maxLevel=c.relocate_levels, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
             criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.03))
         r = r.reshape(-1, 2)
-        good = (st.ravel() == 1) & (er.ravel() < c.relocate_max_err)
+        good = (st.ravel() == 1) & (er.ravel() < (c.relocate_max_err if max_err is None else max_err))
         good &= np.linalg.norm(r - q, axis=1) < c.relocate_max_shift_px
         return np.where(good[:, None], r, q), good
 
@@ -204,7 +214,7 @@ class FlowTracker:
                 p_ref[who] = p[who]
             # prediction through a gap: the median displacement of the neighbours observed now
             pred = p + v
-            gp = np.flatnonzero((in_gap | new) & ~lost)
+            gp = np.flatnonzero(in_gap | new)
             if gp.size:
                 nb = nbr[gp]
                 has = (nb >= 0) & carriers[np.maximum(nb, 0)]
@@ -219,6 +229,18 @@ class FlowTracker:
             if c.relocate_win and back.size:
                 q[back], good = self._relocate(video, t0, p0[back], t + direction, q[back])
                 ok[back[~good]] = False
+            if c.refind and c.relocate_win:
+                miss = np.flatnonzero(~ok & (in_gap | new) & ~lost & (gap % c.refind_every == 0))
+                pm = pred[miss]
+                miss = miss[(pm[:, 0] >= 0) & (pm[:, 0] < W) & (pm[:, 1] >= 0) & (pm[:, 1] < H)]
+                if miss.size:
+                    r, good = self._relocate(video, t0, p0[miss], t + direction, pred[miss], c.refind_max_err,
+                                             c.refind_win)
+                    c0 = sample_image(video.blur[t0], p0[miss]).astype(np.float32)
+                    c1 = sample_image(video.blur[t + direction], r).astype(np.float32)
+                    good &= np.abs(c0 - c1).max(1) < c.max_colour_diff
+                    q[miss[good]] = r[good]
+                    ok[miss[good]] = True
             p_new = np.where(ok[:, None], q, pred)
             v = np.where(ok[:, None], fa, p_new - p)
             smooth = 0.0 if t == t0 else c.velocity_smoothing

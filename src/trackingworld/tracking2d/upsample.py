@@ -57,17 +57,19 @@ def neighbour_weights(pix: np.ndarray, grid_shape: tuple[int, int], stride: int,
         ok = (ix >= 0) & (ix < gw) & (iy >= 0) & (iy < gh)
         ixc, iyc = ix.clip(0, gw - 1), iy.clip(0, gh - 1)
         ok &= grid_ok[iyc, ixc]
-        # grid node pixel positions (integer pixel nearest to the node centre)
-        nx = np.clip(np.round(off + ixc * stride).astype(int), 0, W - 1)
-        ny = np.clip(np.round(off + iyc * stride).astype(int), 0, H - 1)
+        # appearance and motion features scaled by their sigmas, read at the grid nodes (the integer pixel
+        # nearest to each node centre) and at the pixels; one gather of [M,K,C] float32
+        feats = [image / cfg.sigma_color] + ([motion / cfg.sigma_motion] if motion is not None else [])
+        feat = np.concatenate(feats, -1).astype(np.float32) / np.float32(np.sqrt(2.0))
+        nodes_x = np.clip(np.round(off + np.arange(gw) * stride).astype(int), 0, W - 1)
+        nodes_y = np.clip(np.round(off + np.arange(gh) * stride).astype(int), 0, H - 1)
+        node_feat = feat[nodes_y][:, nodes_x].reshape(gh * gw, -1)
         px = np.clip(np.round(pix[:, 0]).astype(int), 0, W - 1)
         py = np.clip(np.round(pix[:, 1]).astype(int), 0, H - 1)
-        d2 = ((gx[:, None] - ixc) ** 2 + (gy[:, None] - iyc) ** 2) / (2 * cfg.sigma_space**2)
-        c2 = ((image[ny, nx] - image[py, px][:, None]) ** 2).sum(-1) / (2 * cfg.sigma_color**2)
-        logit = -(d2 + c2)
-        if motion is not None:
-            m2 = ((motion[ny, nx] - motion[py, px][:, None]) ** 2).sum(-1) / (2 * cfg.sigma_motion**2)
-            logit = logit - m2
+        diff = node_feat[iyc * gw + ixc] - feat[py, px][:, None]
+        s2 = np.float32(2 * cfg.sigma_space**2)
+        d2 = ((gx[:, None] - ixc.astype(np.float32)) ** 2 + (gy[:, None] - iyc.astype(np.float32)) ** 2) / s2
+        logit = -(d2 + np.einsum("mkc,mkc->mk", diff, diff))
         logit = np.where(ok, logit, -np.inf)
         mx = logit.max(1, keepdims=True)
         mx = np.where(np.isfinite(mx), mx, 0.0)
