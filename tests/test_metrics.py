@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from trackingworld.eval.dense import coverage, flow_metrics, label_metrics, track_depth_maps
+from trackingworld.eval.dense import coverage, flow_metrics, label_metrics, static_deviation, track_depth_maps
 from trackingworld.eval.depth import abs_rel_delta1, depth_metrics, fit_scale_shift_depth
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import tapvid_2d, tapvid_3d, world_accuracy
@@ -185,6 +185,29 @@ def test_label_metrics_known():
     assert m["dynamic_precision"] == pytest.approx(200 / 3)
     assert m["static_kept_static"] == pytest.approx(50)
     assert m["bg_mover_recall"] == pytest.approx(50)
+
+
+def test_static_deviation_separates_slipped_and_moving_tracks_from_static_ones():
+    from trackingworld.geometry import look_at, project, transform, unproject
+
+    T, H, W = 4, 60, 80
+    K = np.array([[70.0, 0, 40], [0, 70.0, 30], [0, 0, 1]])
+    poses = np.stack([look_at(np.array([0.1 * t, 0, 0]), np.array([0.1 * t, 0, 5.0])) for t in range(T)])
+    depth = np.full((T, H, W), 5.0)  # a wall 5 m ahead
+    q = np.array([[20.0, 30.0], [40.0, 30.0], [60.0, 25.0]])
+    X = transform(poses[0], unproject(q, np.full(3, 5.0), K))
+    uv = np.stack([project(transform(np.linalg.inv(poses[t]), X), K)[0] for t in range(T)], 1)  # [3,T,2]
+    uv[1, 2:] += [3.0, 0.0]  # slipped 3 px from frame 2 on
+    uv[2] += np.arange(T)[:, None] * [5.0, 0.0]  # a mover drifting 5 px per frame
+    vis = np.ones((3, T), bool)
+    vis[2, 3] = False  # its last frame is hidden: only visible frames count
+    dev = static_deviation(uv, vis, np.zeros(3, int), depth, poses, K)
+    np.testing.assert_allclose(dev, [0.0, 3.0, 10.0], atol=1e-6)
+    m = label_metrics(np.array([False, True, True]), np.array([False, False, True]), np.array([False, False, True]),
+                      dev)
+    assert m["static_kept_static"] == pytest.approx(50) and m["static_consistent_pct"] == pytest.approx(50)
+    assert m["static_kept_static_consistent"] == pytest.approx(100)
+    assert m["bg_mover_moved_pct"] == pytest.approx(100) and m["bg_mover_recall_moved"] == pytest.approx(100)
 
 
 def test_match_queries_exact_track():

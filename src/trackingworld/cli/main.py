@@ -198,6 +198,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--offset-stat", default=d.offset_stat, choices=["max", "p90"])
     g.add_argument("--refine-focal", default=d.refine_focal, choices=["auto", "on", "off"],
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
+    g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
+    g.add_argument("--lambda-dc", type=float, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
@@ -213,6 +215,7 @@ def _optim_config(a):
 
     return OptimConfig(
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
+        lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
         refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})

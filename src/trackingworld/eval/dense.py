@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import invert_pose, transform
+from trackingworld.geometry import invert_pose, project, transform, unproject
 from trackingworld.tracking2d.dense import splat_coverage
 
 
@@ -59,9 +59,39 @@ def track_depth_maps(tracks_2d, visible, tracks_3d, poses_c2w, H: int, W: int):
     return np.where(hit, out, 0.0), hit
 
 
-def label_metrics(pred_dyn: np.ndarray, gt_dyn: np.ndarray, gt_bg: np.ndarray) -> dict:
+CONSISTENT_PX = 2.0  # a static track within this of a static point's projection in every visible frame
+MOVED_PX = 8.0  # a mover's track at least this far from a static point's projection in some visible frame
+
+
+def static_deviation(tracks_2d: np.ndarray, visible: np.ndarray, query_frame: np.ndarray, depth: np.ndarray,
+                     poses_c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """[N] px: how far each track (``tracks_2d [N,T,2]``, ``visible [N,T]``) strays, over its visible frames,
+    from the projection of the ground-truth 3D point under its query pixel (``depth [T,H,W]``, ``poses_c2w``,
+    ``K``) held static. Small for a static point tracked well; large for a mover or a track that slipped off its
+    point. NaN where the query pixel has no depth."""
+    N, T = visible.shape
+    H, W = depth.shape[1:]
+    q = tracks_2d[np.arange(N), query_frame].astype(np.float64)
+    x = np.clip(np.round(q[:, 0]).astype(int), 0, W - 1)
+    y = np.clip(np.round(q[:, 1]).astype(int), 0, H - 1)
+    z = depth[query_frame, y, x].astype(np.float64)
+    X = transform(poses_c2w[query_frame], unproject(q, np.maximum(z, 1e-6), K))  # [N,3] world
+    out = np.zeros(N)
+    w2c = invert_pose(poses_c2w)
+    for t in range(T):
+        v = np.flatnonzero(visible[:, t])
+        uv, _ = project(transform(w2c[t], X[v]), K)
+        out[v] = np.maximum(out[v], np.linalg.norm(uv - tracks_2d[v, t], axis=-1))
+    return np.where(z > 0, out, np.nan)
+
+
+def label_metrics(pred_dyn: np.ndarray, gt_dyn: np.ndarray, gt_bg: np.ndarray,
+                  deviation: np.ndarray | None = None) -> dict:
     """Recall / precision (%) of the dynamic label, static kept static, and recall on the movers the
-    coarse masks missed, reported on their own."""
+    coarse masks missed, reported on their own. With ``deviation`` ([N] px, :func:`static_deviation`) the
+    labeller is also judged apart from the 2D tracker: static kept static among the static tracks that stay
+    within ``CONSISTENT_PX`` of a static point (a slipped track is rightly not static), and missed-mover recall
+    among the tracks that moved ``MOVED_PX`` or more (one that did not move is indistinguishable from static)."""
     tp = (pred_dyn & gt_dyn).sum()
     out = {
         "dynamic_recall": 100 * float(tp / max(gt_dyn.sum(), 1)),
@@ -71,4 +101,12 @@ def label_metrics(pred_dyn: np.ndarray, gt_dyn: np.ndarray, gt_bg: np.ndarray) -
         "n_tracks_bg_mover": int(gt_bg.sum()),
     }
     out["bg_mover_recall"] = 100 * float((pred_dyn & gt_bg).sum() / gt_bg.sum()) if gt_bg.any() else None
+    if deviation is not None:
+        ok = np.isfinite(deviation)
+        cons = ok & ~gt_dyn & (deviation <= CONSISTENT_PX)
+        moved = ok & gt_bg & (deviation >= MOVED_PX)
+        out["static_consistent_pct"] = 100 * float(cons.sum() / max((ok & ~gt_dyn).sum(), 1))
+        out["static_kept_static_consistent"] = 100 * float((~pred_dyn & cons).sum() / max(cons.sum(), 1))
+        out["bg_mover_moved_pct"] = 100 * float(moved.sum() / gt_bg.sum()) if gt_bg.any() else None
+        out["bg_mover_recall_moved"] = 100 * float((pred_dyn & moved).sum() / moved.sum()) if moved.any() else None
     return out

@@ -9,7 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from trackingworld.errors import InputError
-from trackingworld.eval.dense import coverage, dense_flow, flow_metrics, label_metrics, track_depth_maps
+from trackingworld.eval.dense import (
+    coverage,
+    dense_flow,
+    flow_metrics,
+    label_metrics,
+    static_deviation,
+    track_depth_maps,
+)
 from trackingworld.eval.depth import depth_metrics
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import tapvid_2d, tapvid_3d, world_accuracy
@@ -97,8 +104,9 @@ def evaluate(result_dir: str | Path, scene_dir: str | Path) -> dict:
     # dynamic labels of the result's own tracks, judged at their query pixel
     x = np.clip(np.round(res.tracks_2d[np.arange(res.num_tracks), res.query_frame, 0]).astype(int), 0, W - 1)
     y = np.clip(np.round(res.tracks_2d[np.arange(res.num_tracks), res.query_frame, 1]).astype(int), 0, H - 1)
+    dev = static_deviation(res.tracks_2d, res.visible, res.query_frame, gt["depth"], gt["poses_c2w"], gt["K"])
     out["labels"] = label_metrics(res.is_dynamic, gt["dynamic"][res.query_frame, y, x],
-                                  gt["bg_mover"][res.query_frame, y, x])
+                                  gt["bg_mover"][res.query_frame, y, x], dev)
     return out
 
 
@@ -125,6 +133,10 @@ ROWS = [
     ("dynamic precision [%]", ("labels", "dynamic_precision"), 1),
     ("static kept static [%]", ("labels", "static_kept_static"), 1),
     ("bg-mover recall [%]", ("labels", "bg_mover_recall"), 1),
+    ("static within 2 px [%]", ("labels", "static_consistent_pct"), 1),
+    ("  of those kept static [%]", ("labels", "static_kept_static_consistent"), 1),
+    ("bg-movers moved 8+ px [%]", ("labels", "bg_mover_moved_pct"), 1),
+    ("  of those recalled [%]", ("labels", "bg_mover_recall_moved"), 1),
 ]
 
 
