@@ -45,7 +45,7 @@ class FlowTrackerConfig:
     relocate_max_shift_px: float = 16.0
     relocate_max_err: float = 20.0  # mean absolute grey difference over the window
     refind: bool = True  # a point in a gap is also looked for by Lucas-Kanade at its predicted position
-    refind_max_err: float = 10.0  # ... and found when the window matches its query patch this well
+    refind_max_err: float = 8.0  # ... and found when the window matches its query patch this well
     refind_win: int = 11
     refind_every: int = 1  # ... every this many frames of the gap
     verbose: bool = False
