@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import invert_pose, project, transform, unproject
+from trackingworld.geometry import invert_pose, nearest_pixel, project, transform, unproject
 from trackingworld.tracking2d.dense import splat_coverage
 
 
@@ -72,8 +72,7 @@ def static_deviation(tracks_2d: np.ndarray, visible: np.ndarray, query_frame: np
     N, T = visible.shape
     H, W = depth.shape[1:]
     q = tracks_2d[np.arange(N), query_frame].astype(np.float64)
-    x = np.clip(np.round(q[:, 0]).astype(int), 0, W - 1)
-    y = np.clip(np.round(q[:, 1]).astype(int), 0, H - 1)
+    x, y = nearest_pixel(q, W, H)
     z = depth[query_frame, y, x].astype(np.float64)
     X = transform(poses_c2w[query_frame], unproject(q, np.maximum(z, 1e-6), K))  # [N,3] world
     out = np.zeros(N)

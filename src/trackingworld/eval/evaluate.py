@@ -21,7 +21,7 @@ from trackingworld.eval.depth import depth_metrics
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import tapvid_2d, tapvid_3d, world_accuracy
 from trackingworld.eval.trajectory import apply_sim3, camera_metrics, sim3_from_trajectories
-from trackingworld.geometry import invert_pose, transform
+from trackingworld.geometry import invert_pose, nearest_pixel, transform
 from trackingworld.io.atomic import write_json
 from trackingworld.io.result import load_result
 
@@ -102,8 +102,7 @@ def evaluate(result_dir: str | Path, scene_dir: str | Path) -> dict:
         pf, po = dense_flow(res.tracks_2d, res.visible, src, dst, H, W)
         out["flow"] = {"frames": [src, dst], **flow_metrics(pf, po, gt["flow"], gt["flow_occluded"])}
     # dynamic labels of the result's own tracks, judged at their query pixel
-    x = np.clip(np.round(res.tracks_2d[np.arange(res.num_tracks), res.query_frame, 0]).astype(int), 0, W - 1)
-    y = np.clip(np.round(res.tracks_2d[np.arange(res.num_tracks), res.query_frame, 1]).astype(int), 0, H - 1)
+    x, y = nearest_pixel(res.tracks_2d[np.arange(res.num_tracks), res.query_frame], W, H)
     dev = static_deviation(res.tracks_2d, res.visible, res.query_frame, gt["depth"], gt["poses_c2w"], gt["K"])
     out["labels"] = label_metrics(res.is_dynamic, gt["dynamic"][res.query_frame, y, x],
                                   gt["bg_mover"][res.query_frame, y, x], dev)

@@ -47,7 +47,6 @@ class FlowTrackerConfig:
     refind: bool = True  # a point in a gap is also looked for by Lucas-Kanade at its predicted position
     refind_max_err: float = 8.0  # ... and found when the window matches its query patch this well
     refind_win: int = 11
-    refind_every: int = 1  # ... every this many frames of the gap
     verbose: bool = False
 
 
@@ -190,6 +189,8 @@ class FlowTracker:
         nbr = np.full((M, K), -1, np.int64)  # neighbours carrying a point through its gap
         nbr_ref = np.zeros((M, K, 2), np.float32)  # their positions when the gap began
         p_ref = p.copy()  # the point's last observed position
+        refind = c.refind and c.relocate_win > 0
+        c_query = sample_image(video.blur[t0], p0).astype(np.float32) if refind else None  # colour to find again
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
@@ -229,16 +230,15 @@ class FlowTracker:
             if c.relocate_win and back.size:
                 q[back], good = self._relocate(video, t0, p0[back], t + direction, q[back])
                 ok[back[~good]] = False
-            if c.refind and c.relocate_win:
-                miss = np.flatnonzero(~ok & (in_gap | new) & ~lost & (gap % c.refind_every == 0))
+            if refind:
+                miss = np.flatnonzero(~ok & (in_gap | new) & ~lost)
                 pm = pred[miss]
                 miss = miss[(pm[:, 0] >= 0) & (pm[:, 0] < W) & (pm[:, 1] >= 0) & (pm[:, 1] < H)]
                 if miss.size:
                     r, good = self._relocate(video, t0, p0[miss], t + direction, pred[miss], c.refind_max_err,
                                              c.refind_win)
-                    c0 = sample_image(video.blur[t0], p0[miss]).astype(np.float32)
                     c1 = sample_image(video.blur[t + direction], r).astype(np.float32)
-                    good &= np.abs(c0 - c1).max(1) < c.max_colour_diff
+                    good &= np.abs(c_query[miss] - c1).max(1) < c.max_colour_diff
                     q[miss[good]] = r[good]
                     ok[miss[good]] = True
             p_new = np.where(ok[:, None], q, pred)
