@@ -29,6 +29,7 @@ class DenseConfig:
     min_component: int = 50  # tau: smallest uncovered component that becomes new tracks
     mode: str = "upsample"  # upsample | direct
     vis_threshold: float = 0.5
+    motion_window: int = 3  # w: the upsampler's motion cue is each pixel's displacement to frames t +- w
     upsample: UpsampleConfig = field(default_factory=UpsampleConfig)
     device: str = "cpu"
     verbose: bool = True
@@ -80,14 +81,25 @@ class DenseTracker:
         self.stats: dict = {}
 
     def _motion_features(self, frames: np.ndarray, t: int) -> np.ndarray | None:
+        """Motion of every pixel of frame ``t`` ``[H,W,4]``: its displacement (px) to frames t + w and t - w
+        (w = ``motion_window``, fewer at the ends of the video) by chained optical flow, divided by sqrt(w)."""
         if not hasattr(self.sparse, "flows"):
             return None
         fwd, bwd = self.sparse.flows(frames)
         T = len(frames)
         H, W = frames.shape[1:3]
-        f = fwd[t] if t < T - 1 else np.zeros((H, W, 2), np.float32)
-        b = bwd[t - 1] if t > 0 else np.zeros((H, W, 2), np.float32)
-        return np.concatenate([f, b], -1)
+        w = self.cfg.motion_window
+        base = np.stack(np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)), -1)
+        out = []
+        for direction, flows in ((1, fwd), (-1, bwd)):
+            p = base.copy()
+            for tt in range(t, t + direction * w, direction):
+                if not 0 <= tt + direction < T:
+                    break
+                k = tt if direction == 1 else tt - 1  # flow between tt and tt + direction
+                p += cv2.remap(flows[k], p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            out.append(p - base)
+        return np.concatenate(out, -1) / np.float32(np.sqrt(w))
 
     def _track_pixels(self, frames: np.ndarray, t: int, pix: np.ndarray):
         """Tracks [M,T,2] and visibility weight [M,T] for pixels ``pix`` of query frame ``t``."""
