@@ -2,8 +2,8 @@
 
 Every dense pixel takes a convex combination of the displacements of the 5x5 grid tracks around it. The
 weights are computed once, at the query frame, from spatial distance, colour similarity and similarity of
-motion (the pixel's own optical flow to the neighbouring frames against each neighbour's), and applied to
-displacements and visibility at every frame. Neighbours outside the image or not tracked get no weight.
+motion (the pixel's displacement over a window of frames against each neighbour's, see
+``DenseConfig.motion_window``), and applied to displacements and visibility at every frame. Neighbours outside the image or not tracked get no weight.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ def neighbour_weights(pix: np.ndarray, grid_shape: tuple[int, int], stride: int,
                       motion: np.ndarray | None, grid_ok: np.ndarray, cfg: UpsampleConfig):
     """Indices ``[M,K]`` into the flattened grid and convex weights ``[M,K]`` for pixels ``pix [M,2]``.
 
-    image [H,W,3] float in [0,1] at the query frame; motion [H,W,C] per-pixel motion features (flow to the
-    neighbouring frames) or None; grid_ok [gh,gw] bool: grid tracks that exist.
+    image [H,W,3] float in [0,1] at the query frame; motion [H,W,C] per-pixel motion features (displacements
+    over a window of frames) or None; grid_ok [gh,gw] bool: grid tracks that exist.
     """
     gh, gw = grid_shape
     H, W = image.shape[:2]
