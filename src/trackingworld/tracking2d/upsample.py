@@ -3,7 +3,8 @@
 Every dense pixel takes a convex combination of the displacements of the 5x5 grid tracks around it. The
 weights are computed once, at the query frame, from spatial distance, colour similarity and similarity of
 motion (the pixel's displacement over a window of frames against each neighbour's, see
-``DenseConfig.motion_window``), and applied to displacements and visibility at every frame. Neighbours outside the image or not tracked get no weight.
+``DenseConfig.motion_window``), and applied to displacements and visibility at every frame. Neighbours outside
+the image or not tracked get no weight.
 """
 
 from __future__ import annotations
