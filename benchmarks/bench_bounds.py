@@ -20,14 +20,13 @@ import numpy as np
 
 from _common import md_table_start, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.eval.tracks import world_accuracy
-from trackingworld.geometry import nearest_pixel
+from trackingworld.geometry import invert_pose, nearest_pixel, transform, unproject
 from trackingworld.synth import render_and_write
 
 
 def _rays_world(uv: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> np.ndarray:
     """Unit rays ``[n,3]`` in the world of pixels ``uv [n,2]`` seen from poses ``c2w [n,4,4]``."""
-    d = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(K).T
-    d = np.einsum("nij,nj->ni", c2w[:, :3, :3], d)
+    d = np.einsum("nij,nj->ni", c2w[:, :3, :3], unproject(uv, np.ones(len(uv)), K))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
@@ -47,7 +46,7 @@ def bounds(scene: Path, noise_px=(0.25, 0.5, 1.0), seed: int = 0) -> dict:
     static = ~(g["tracks_dynamic"] | g["tracks_bg_mover"]) & (g["tracks_vis"].sum(1) >= 2)
     idx = np.flatnonzero(static)
     uv, vis, gt_xyz = g["tracks_uv"].astype(np.float64), g["tracks_vis"], g["tracks_xyz"]
-    w2c = np.linalg.inv(c2w)
+    w2c = invert_pose(c2w)
     rng = np.random.default_rng(seed)
     est = {"prior per frame": np.zeros((len(idx), T, 3)), "prior averaged in the world": np.zeros((len(idx), T, 3))}
     est |= {f"triangulation, {s} px noise": np.zeros((len(idx), T, 3)) for s in noise_px}
@@ -56,8 +55,7 @@ def bounds(scene: Path, noise_px=(0.25, 0.5, 1.0), seed: int = 0) -> dict:
         ts = np.flatnonzero(vis[i])
         x, y = nearest_pixel(uv[i, ts], W, H)
         z = prior[ts, y, x].astype(np.float64)
-        d_cam = np.c_[uv[i, ts], np.ones(len(ts))] @ np.linalg.inv(K).T  # rays with z = 1
-        pw = np.einsum("nij,nj->ni", c2w[ts, :3, :3], d_cam * z[:, None]) + c2w[ts, :3, 3]
+        pw = transform(c2w[ts], unproject(uv[i, ts], z, K))
         est["prior per frame"][n, ts] = pw
         est["prior averaged in the world"][n] = pw.mean(0)
         for s in noise_px:
@@ -66,7 +64,7 @@ def bounds(scene: Path, noise_px=(0.25, 0.5, 1.0), seed: int = 0) -> dict:
         z_obs.append(z)
         z_gt.append(g["depth"][ts, y, x].astype(np.float64))
         for k, e in est.items():
-            z_est[k].append(np.einsum("nj,nj->n", w2c[ts, 2, :3], e[n, ts]) + w2c[ts, 2, 3])
+            z_est[k].append(transform(w2c[ts], e[n, ts])[:, 2])
     zg, zp = np.concatenate(z_gt), np.concatenate(z_obs)
     prior_absrel = float(np.mean(np.abs(zp - zg) / zg))
     rows = {}
