@@ -12,6 +12,7 @@ from trackingworld.cli.main import main
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt, project, transform
 from trackingworld.optim import lie, stage2, stage3
+from trackingworld.optim.densify import cell_cap_mask
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import chain_clips, clip_frames, initial_poses
 from trackingworld.synth import render_and_write
@@ -133,6 +134,26 @@ def test_label_tracks_from_masks():
     vis = np.ones((3, 3), bool)
     lab = label_tracks(tracks, vis, np.zeros(3, np.int64), masks, margin_px=2)
     assert list(lab) == [STATIC, DYNAMIC, AMBIGUOUS]
+
+
+def test_cell_cap_keeps_the_longest_tracks_of_every_visited_cell():
+    # frames 0-3; cells of 8 px. Track 0 stays in cell (0,0) for all frames, track 1 in the same cell for
+    # frames 0-1 only, track 2 alone in cell (2,0) at frame 3, track 3 a shorter copy of track 0
+    T = 4
+    uv = np.zeros((4, T, 2))
+    uv[0] = [1.0, 1.0]
+    uv[1] = [3.0, 2.0]
+    uv[2] = [20.0, 1.0]
+    uv[3] = [2.0, 2.0]
+    vis = np.array([[1, 1, 1, 1], [1, 1, 0, 0], [0, 0, 0, 1], [0, 1, 1, 1]], bool)
+    keep = cell_cap_mask(uv, vis, 8, cap=1)
+    assert keep.tolist() == [[1, 1, 1, 1], [0, 0, 0, 0], [0, 0, 0, 1], [0, 0, 0, 0]]
+    two = cell_cap_mask(uv, vis, 8, cap=2)  # the runner-up per cell: track 3 (3 frames) before track 1 (2)
+    assert two.tolist() == [[1, 1, 1, 1], [1, 0, 0, 0], [0, 0, 0, 1], [0, 1, 1, 1]]
+    assert (cell_cap_mask(uv, vis, 8, cap=0) == vis).all()
+    # every (frame, cell) some track visits is still observed
+    cells = lambda m: {(t, *np.floor(uv[i, t] / 8).astype(int)) for i, t in np.argwhere(m)}  # noqa: E731
+    assert cells(keep) == cells(vis)
 
 
 def test_full_method_beats_the_baseline(tiny_scene, tmp_path):

@@ -69,9 +69,14 @@ class OptimConfig:
     dc_target: str = "prior"  # prior: the raw prior (paper) | aligned: prior rescaled by the static tracks (appendix)
     # speed-up (appendix): one optimised static track per (query frame, round(xy / cell)) cell
     downsample_cell: int = 8  # 0: optimise every static track
+    # of their observations, keep those of the cell_cap longest tracks visible in each (frame, cell) cell (not
+    # in the paper; 0: all): the optimised observations per frame stay bounded as the video grows
+    # (densify.cell_cap_mask). The moving-background test still sees every observation.
+    cell_cap: int = 1
     idw_k: int = 3
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.
+    # cell_cap applies to the control tracks' observations too (per frame and dynamic_cell cell).
     # solvers
     lm_iters: int = 15
     lm_tol: float = 1e-6  # stop when the relative decrease of the loss falls below this

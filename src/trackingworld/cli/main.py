@@ -206,6 +206,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dc-target", default=d.dc_target, choices=["aligned", "prior"])
     g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,
                    help="optimise one static track per cell of this many px (0: all)")
+    g.add_argument("--cell-cap", type=int, default=d.cell_cap,
+                   help="optimise at most this many tracks' observations per frame and cell (0: all, the paper)")
     for name, text in ABLATIONS.items():
         g.add_argument("--" + name.replace("_", "-"), action="store_true", help=text)
 
@@ -217,7 +219,7 @@ def _optim_config(a):
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
-        refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, verbose=not a.quiet,
+        refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 
 

@@ -26,6 +26,32 @@ def cell_representatives(queries: np.ndarray, cell: int) -> np.ndarray:
     return np.sort(first)
 
 
+def cell_cap_mask(uv: np.ndarray, vis: np.ndarray, cell: float, cap: int = 1) -> np.ndarray:
+    """Observations ``[N,T]`` bool kept so that every (frame, floor(xy / cell)) cell keeps the ``cap`` longest
+    tracks visible there (ties to the lower index). uv [N,T,2] px, vis [N,T]; ``cap <= 0`` keeps all.
+
+    Why: one track per (query frame, cell) bounds the tracks born in a frame but not the tracks seen in it; in a
+    longer video more query frames add tracks and each is visible longer, so the observations of the optimised
+    tracks grow with the square of the length. Capping them per frame and cell keeps their number
+    proportional to the length and leaves every visited cell of every frame observed.
+    """
+    if cap <= 0 or len(uv) == 0:
+        return vis.copy()
+    n, t = np.nonzero(vis)
+    c = np.floor(uv[n, t] / cell).astype(np.int64)
+    c -= c.min(0)
+    span = c.max(0) + 1
+    key = (t * span[1] + c[:, 1]) * span[0] + c[:, 0]
+    order = np.lexsort((n, -vis.sum(1)[n], key))
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    rank = np.arange(len(ks)) - np.repeat(start, np.diff(np.r_[start, len(ks)]))
+    sel = order[rank < cap]
+    out = np.zeros_like(vis)
+    out[n[sel], t[sel]] = True
+    return out
+
+
 def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, query_uv: np.ndarray,
                     query_depth: np.ndarray, K: np.ndarray, k: int = 4, eps: float = 1e-3) -> np.ndarray:
     """Inverse-distance-weighted ratio ``[Q]`` at query pixels of one frame.

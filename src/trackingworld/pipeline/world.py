@@ -17,7 +17,13 @@ from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length, invert_pose, transform, unproject
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2, stage3
-from trackingworld.optim.densify import cell_representatives, propagate_ratio, ratio_maps, thin_references
+from trackingworld.optim.densify import (
+    cell_cap_mask,
+    cell_representatives,
+    propagate_ratio,
+    ratio_maps,
+    thin_references,
+)
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
@@ -88,7 +94,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         labels = label_tracks(tr.tracks, vis, qf, masks, cfg.mask_margin_px)
         static_idx = np.flatnonzero(labels == STATIC)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
-        s2 = reps[vis[reps].sum(1) >= 2]
+        # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
+        obs = cell_cap_mask(tr.tracks[reps], vis[reps], cfg.downsample_cell, cfg.cell_cap)
+        keep = obs.sum(1) >= 2
+        s2, obs2 = reps[keep], obs[keep]
         info.update(static=int(len(static_idx)), dynamic_masks=int((labels == DYNAMIC).sum()),
                     ambiguous=int((labels == AMBIGUOUS).sum()), optimised_static=int(len(s2)))
 
@@ -96,10 +105,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         if cfg.no_pose_init or len(s2) == 0:
             poses = np.tile(np.eye(4), (T, 1, 1))
         else:
-            poses, info["stage1"] = initial_poses(uv[s2], D[s2], vis[s2], K, cfg, rng, device, log)
+            poses, info["stage1"] = initial_poses(uv[s2], D[s2], obs2, K, cfg, rng, device, log)
 
     with tm("stage2"):
-        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
+        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], obs2, K, cfg, dtype, device)
         R, t = lie.c2w_to_w2c(poses, dtype, device)
         X0 = stage2.init_points(R, t, p)
         loss0 = float(stage2.loss(R, t, X0, p))
@@ -144,6 +153,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         if refine_focal:
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
+        if cfg.cell_cap > 0:  # the moving-background test on every observation of the optimised tracks
+            full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
+            moving_s2 = _moving(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()
         info["stage2"]["moving"] = int(moving_s2.sum())
@@ -207,13 +219,20 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             target = D[dyn]
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
+            obs = cell_cap_mask(tr.tracks[dyn[ctrl]], vis[dyn[ctrl]], cfg.dynamic_cell, cfg.cell_cap)
+            ctrl, obs = ctrl[obs.any(1)], obs[obs.any(1)]
             cd = dyn[ctrl]
-            xyz[cd] = _dynamic_tracks(uv[cd], vis[cd], target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,
+            xyz[cd] = _dynamic_tracks(uv[cd], obs, target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,
                                       log, info)
-            others = np.setdiff1d(np.arange(len(dyn)), ctrl)
-            if len(others):
-                xyz[dyn[others]] = _follow_controls(uv, vis, D, target, dyn, ctrl, others, xyz, poses, K, cfg.idw_k)
+            # every other visible observation of a dynamic track follows the optimised ones
+            follow = vis[dyn].copy()
+            follow[ctrl] &= ~obs
+            if follow.any():
+                moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
+                xyz[dyn] = np.where(follow[..., None], moved, xyz[dyn])
+                xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
             info["stage3_controls"] = int(len(ctrl))
+            info["stage3_observations"] = int(obs.sum())
 
     with tm("video_depth"):
         z_all = camera_depths(xyz, poses)
@@ -223,22 +242,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             "info": info}
 
 
-def _follow_controls(uv, vis, D, target, dyn, ctrl, others, xyz, poses, K, k) -> np.ndarray:
-    """Dynamic tracks that were not optimised: in every visible frame, their own pixel ray at their target
-    depth times the IDW-propagated correction ``z_opt / target`` of the control tracks visible there."""
-    T = vis.shape[1]
-    cd, od = dyn[ctrl], dyn[others]
-    zc = camera_depths(xyz[cd], poses)
-    corr = zc / np.maximum(target[ctrl], 1e-6)
-    out = np.zeros((len(od), T, 3))
+def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
+    """World positions ``[Nd,T,3]`` of the dynamic tracks ``dyn`` at the observations ``follow [Nd,T]`` (zero
+    elsewhere): their own pixel ray at their target depth (``target [Nd,T]``) times the IDW-propagated
+    correction ``z_opt / target`` of the optimised control observations (``dyn[ctrl]`` where ``ref_obs``)."""
+    T = follow.shape[1]
+    cd = dyn[ctrl]
+    corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
+    out = np.zeros((len(dyn), T, 3))
     for t in range(T):
-        w = np.flatnonzero(vis[od, t])
-        v = np.flatnonzero(vis[cd, t])
+        w = np.flatnonzero(follow[:, t])
+        v = np.flatnonzero(ref_obs[:, t])
         if not len(w):
             continue
-        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[od[w], t], D[od[w], t], K, k)
-        out[w, t] = transform(poses[t], unproject(uv[od[w], t], r * target[others[w], t], K))
-    return hold_invisible(out, vis[od])
+        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
+        out[w, t] = transform(poses[t], unproject(uv[dyn[w], t], r * target[w, t], K))
+    return out
 
 
 def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
