@@ -130,7 +130,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                 break
             if start is None:
                 start = (K, p, R, t, X, moving_s2)
-            fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=cfg.lm_tol, log=log)
+            fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=min(cfg.lm_tol, 1e-6), log=log)
             K = fsol.K.cpu().numpy()
             p = replace(p, K=fsol.K)
             R, t = fsol.R, fsol.t
