@@ -136,9 +136,10 @@ def test_label_tracks_from_masks():
     assert list(lab) == [STATIC, DYNAMIC, AMBIGUOUS]
 
 
-def test_cell_cap_keeps_the_longest_tracks_of_every_visited_cell():
-    # frames 0-3; cells of 8 px. Track 0 stays in cell (0,0) for all frames, track 1 in the same cell for
-    # frames 0-1 only, track 2 alone in cell (2,0) at frame 3, track 3 a shorter copy of track 0
+def test_cell_cap_keeps_the_freshest_tracks_of_every_visited_cell():
+    # frames 0-3, cells of 8 px. Track 0 (query frame 0) stays in cell (0,0) for all frames; track 1 (query
+    # frame 1) in the same cell for frames 0-1; track 2 alone in cell (2,0) at frame 3; track 3 (query frame 3)
+    # in cell (0,0) for frames 1-3
     T = 4
     uv = np.zeros((4, T, 2))
     uv[0] = [1.0, 1.0]
@@ -146,14 +147,19 @@ def test_cell_cap_keeps_the_longest_tracks_of_every_visited_cell():
     uv[2] = [20.0, 1.0]
     uv[3] = [2.0, 2.0]
     vis = np.array([[1, 1, 1, 1], [1, 1, 0, 0], [0, 0, 0, 1], [0, 1, 1, 1]], bool)
-    keep = cell_cap_mask(uv, vis, 8, cap=1)
-    assert keep.tolist() == [[1, 1, 1, 1], [0, 0, 0, 0], [0, 0, 0, 1], [0, 0, 0, 0]]
-    two = cell_cap_mask(uv, vis, 8, cap=2)  # the runner-up per cell: track 3 (3 frames) before track 1 (2)
-    assert two.tolist() == [[1, 1, 1, 1], [1, 0, 0, 0], [0, 0, 0, 1], [0, 1, 1, 1]]
-    assert (cell_cap_mask(uv, vis, 8, cap=0) == vis).all()
-    # every (frame, cell) some track visits is still observed
-    cells = lambda m: {(t, *np.floor(uv[i, t] / 8).astype(int)) for i, t in np.argwhere(m)}  # noqa: E731
-    assert cells(keep) == cells(vis)
+    qf = np.array([0, 1, 3, 3])
+    keep = cell_cap_mask(uv, vis, qf, 8, cap=1)
+    # frame 0: track 0 (0 frames from its query frame); frame 1: track 1 (0 from its own); frame 2: track 3 (1
+    # away, track 0 is 2 away); frame 3: track 3 (0 away); cell (2,0) at frame 3: track 2
+    assert keep.tolist() == [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1], [0, 0, 1, 1]]
+    # equally fresh: the longer track wins
+    assert cell_cap_mask(uv, vis, np.array([1, 1, 3, 2]), 8)[:, 1].tolist() == [True, False, False, False]
+    two = cell_cap_mask(uv, vis, qf, 8, cap=2)
+    assert two.tolist() == [[1, 1, 1, 1], [1, 1, 0, 0], [0, 0, 0, 1], [0, 0, 1, 1]]
+    assert (cell_cap_mask(uv, vis, qf, 8, cap=0) == vis).all() and (cell_cap_mask(uv, vis, qf, 0) == vis).all()
+    # every (frame, cell) some track visits is still observed, and no cell-frame holds more than the cap
+    cells = lambda m: [(t, *np.floor(uv[i, t] / 8).astype(int)) for i, t in np.argwhere(m)]  # noqa: E731
+    assert set(cells(keep)) == set(cells(vis)) and len(cells(keep)) == len(set(cells(keep)))
 
 
 def test_full_method_beats_the_baseline(tiny_scene, tmp_path):

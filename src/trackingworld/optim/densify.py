@@ -26,23 +26,26 @@ def cell_representatives(queries: np.ndarray, cell: int) -> np.ndarray:
     return np.sort(first)
 
 
-def cell_cap_mask(uv: np.ndarray, vis: np.ndarray, cell: float, cap: int = 1) -> np.ndarray:
-    """Observations ``[N,T]`` bool kept so that every (frame, floor(xy / cell)) cell keeps the ``cap`` longest
-    tracks visible there (ties to the lower index). uv [N,T,2] px, vis [N,T]; ``cap <= 0`` keeps all.
+def cell_cap_mask(uv: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, cell: float, cap: int = 1) -> np.ndarray:
+    """Observations ``[N,T]`` bool kept so that every (frame, floor(xy / cell)) cell keeps ``cap`` of the tracks
+    visible there: those nearest their own query frame in time (the least drift), then the longest, then the
+    lower index. uv [N,T,2] px, vis [N,T], query_frame [N]; ``cap <= 0`` or ``cell <= 0`` (no downsampling)
+    keeps all.
 
     Why: one track per (query frame, cell) bounds the tracks born in a frame but not the tracks seen in it; in a
     longer video more query frames add tracks and each is visible longer, so the observations of the optimised
     tracks grow with the square of the length. Capping them per frame and cell keeps their number
-    proportional to the length and leaves every visited cell of every frame observed.
+    proportional to the length and leaves every visited cell of every frame observed. Preferring the track
+    nearest its query frame measured better than preferring the longest (benchmarks/bench_scaling.py, README).
     """
-    if cap <= 0 or len(uv) == 0:
+    if cap <= 0 or cell <= 0 or len(uv) == 0:
         return vis.copy()
     n, t = np.nonzero(vis)
     c = np.floor(uv[n, t] / cell).astype(np.int64)
     c -= c.min(0)
     span = c.max(0) + 1
     key = (t * span[1] + c[:, 1]) * span[0] + c[:, 0]
-    order = np.lexsort((n, -vis.sum(1)[n], key))
+    order = np.lexsort((n, -vis.sum(1)[n], np.abs(t - query_frame[n]), key))
     ks = key[order]
     start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
     rank = np.arange(len(ks)) - np.repeat(start, np.diff(np.r_[start, len(ks)]))

@@ -95,7 +95,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         static_idx = np.flatnonzero(labels == STATIC)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
-        obs = cell_cap_mask(tr.tracks[reps], vis[reps], cfg.downsample_cell, cfg.cell_cap)
+        obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
         keep = obs.sum(1) >= 2
         s2, obs2 = reps[keep], obs[keep]
         info.update(static=int(len(static_idx)), dynamic_masks=int((labels == DYNAMIC).sum()),
@@ -219,7 +219,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             target = D[dyn]
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
-            obs = cell_cap_mask(tr.tracks[dyn[ctrl]], vis[dyn[ctrl]], cfg.dynamic_cell, cfg.cell_cap)
+            cd = dyn[ctrl]
+            obs = cell_cap_mask(tr.tracks[cd], vis[cd], qf[cd], cfg.dynamic_cell, cfg.cell_cap)
             ctrl, obs = ctrl[obs.any(1)], obs[obs.any(1)]
             cd = dyn[ctrl]
             xyz[cd] = _dynamic_tracks(uv[cd], obs, target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,

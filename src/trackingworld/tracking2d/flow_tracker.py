@@ -47,6 +47,10 @@ class FlowTrackerConfig:
     refind: bool = True  # a point in a gap is also looked for by Lucas-Kanade at its predicted position
     refind_max_err: float = 8.0  # ... and found when the window matches its query patch this well
     refind_win: int = 11
+    # a point whose colour has left its query colour by more than this (grey levels, max over RGB, sigma-1 blur)
+    # for drift_frames observed frames in a row has slipped off its surface point and is lost; 0: off
+    max_query_colour_diff: float = 0.0
+    drift_frames: int = 2
     verbose: bool = False
 
 
@@ -190,7 +194,10 @@ class FlowTracker:
         nbr_ref = np.zeros((M, K, 2), np.float32)  # their positions when the gap began
         p_ref = p.copy()  # the point's last observed position
         refind = c.refind and c.relocate_win > 0
-        c_query = sample_image(video.blur[t0], p0).astype(np.float32) if refind else None  # colour to find again
+        drift_check = c.max_query_colour_diff > 0
+        # the query colour: what a point found again must match, and what an observed point must stay near
+        c_query = sample_image(video.blur[t0], p0).astype(np.float32) if refind or drift_check else None
+        off_colour = np.zeros(M, int)
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
@@ -248,6 +255,10 @@ class FlowTracker:
             p = p_new
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
             gap = np.where(ok, 0, gap + 1)
+            if drift_check:
+                far = np.abs(sample_image(video.blur[t + direction], p).astype(np.float32) - c_query).max(1)
+                off_colour = np.where(ok & (far > c.max_query_colour_diff), off_colour + 1, np.where(ok, 0, off_colour))
+                lost |= off_colour >= c.drift_frames
             lost |= (gap > c.max_gap) | ~inside
             t += direction
             n = len(sel)
