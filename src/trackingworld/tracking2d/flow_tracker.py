@@ -11,7 +11,11 @@ prediction accumulated through the gap. Where the flow does not agree (it often 
 that just left), the point is also looked for directly: Lucas-Kanade from the query patch, started at the
 predicted position, finds it when the window matches closely and the colour there is the query colour.
 Positions in frames where a point is not visible are these predictions, not observations; they are kept
-(not held at the last observed position) because they are the better guess of where the point is."""
+(not held at the last observed position) because they are the better guess of where the point is.
+
+Drift: chained flow lets a point slide slowly off its surface point, which no single step's checks see. A point
+whose colour has moved more than ``max_query_colour_diff`` from its colour in the query frame is lost from
+there on; in dense tracking the pixels it covered become uncovered and get a fresh track from that frame."""
 
 from __future__ import annotations
 
@@ -47,10 +51,9 @@ class FlowTrackerConfig:
     refind: bool = True  # a point in a gap is also looked for by Lucas-Kanade at its predicted position
     refind_max_err: float = 8.0  # ... and found when the window matches its query patch this well
     refind_win: int = 11
-    # a point whose colour has left its query colour by more than this (grey levels, max over RGB, sigma-1 blur)
-    # for drift_frames observed frames in a row has slipped off its surface point and is lost; 0: off
-    max_query_colour_diff: float = 0.0
-    drift_frames: int = 2
+    # an observed point whose colour has left its query colour by more than this (grey levels, max over RGB,
+    # sigma-1 blur) has slipped off its surface point and is lost, so that a fresh track takes its place; 0: off
+    max_query_colour_diff: float = 25.0
     verbose: bool = False
 
 
@@ -197,7 +200,6 @@ class FlowTracker:
         drift_check = c.max_query_colour_diff > 0
         # the query colour: what a point found again must match, and what an observed point must stay near
         c_query = sample_image(video.blur[t0], p0).astype(np.float32) if refind or drift_check else None
-        off_colour = np.zeros(M, int)
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
@@ -257,8 +259,7 @@ class FlowTracker:
             gap = np.where(ok, 0, gap + 1)
             if drift_check:
                 far = np.abs(sample_image(video.blur[t + direction], p).astype(np.float32) - c_query).max(1)
-                off_colour = np.where(ok & (far > c.max_query_colour_diff), off_colour + 1, np.where(ok, 0, off_colour))
-                lost |= off_colour >= c.drift_frames
+                lost |= ok & (far > c.max_query_colour_diff)
             lost |= (gap > c.max_gap) | ~inside
             t += direction
             n = len(sel)
