@@ -207,10 +207,12 @@ class FlowTracker:
             q = p + fa
             err = np.linalg.norm(fa + sample_flow(flows_b[k], q), axis=1)
             ok = (err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)) & ~lost
+            cb = None
             if c.max_colour_diff > 0:
                 ca = sample_image(video.blur[t], p).astype(np.float32)
                 cb = sample_image(video.blur[t + direction], q).astype(np.float32)
                 ok &= np.abs(ca - cb).max(1) < c.max_colour_diff
+            moved = np.zeros(M, bool)  # points whose position in the next frame is not the flow's
             in_gap = gap > 0
             carriers = ok & ~in_gap  # observed in both frames
             new = ~ok & ~in_gap & ~lost  # points whose gap begins now
@@ -239,6 +241,7 @@ class FlowTracker:
             if c.relocate_win and back.size:
                 q[back], good = self._relocate(video, t0, p0[back], t + direction, q[back])
                 ok[back[~good]] = False
+                moved[back] = True
             if refind:
                 miss = np.flatnonzero(~ok & (in_gap | new) & ~lost)
                 pm = pred[miss]
@@ -250,6 +253,7 @@ class FlowTracker:
                     good &= np.abs(c_query[miss] - c1).max(1) < c.max_colour_diff
                     q[miss[good]] = r[good]
                     ok[miss[good]] = True
+                    moved[miss[good]] = True
             p_new = np.where(ok[:, None], q, pred)
             v = np.where(ok[:, None], fa, p_new - p)
             smooth = 0.0 if t == t0 else c.velocity_smoothing
@@ -257,9 +261,12 @@ class FlowTracker:
             p = p_new
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
             gap = np.where(ok, 0, gap + 1)
-            if drift_check:
-                far = np.abs(sample_image(video.blur[t + direction], p).astype(np.float32) - c_query).max(1)
-                lost |= ok & (far > c.max_query_colour_diff)
+            if drift_check:  # the colour at the new position: sampled above unless the position moved since
+                resample = np.flatnonzero(ok & moved) if cb is not None else np.flatnonzero(ok)
+                c_new = cb if cb is not None else np.zeros_like(c_query)
+                if resample.size:
+                    c_new[resample] = sample_image(video.blur[t + direction], p[resample]).astype(np.float32)
+                lost |= ok & (np.abs(c_new - c_query).max(1) > c.max_query_colour_diff)
             lost |= (gap > c.max_gap) | ~inside
             t += direction
             n = len(sel)

@@ -22,6 +22,7 @@ class UpsampleConfig:
     sigma_color: float = 0.08  # RGB in [0,1]
     sigma_motion: float = 0.75  # pixels of flow difference
     mode: str = "convex"  # convex | bilinear
+    top_k: int = 16  # keep the k largest weights of each pixel (renormalised); 0: all (2 radius + 1)^2
 
 
 def grid_offset(stride: int) -> float:
@@ -75,9 +76,13 @@ def neighbour_weights(pix: np.ndarray, grid_shape: tuple[int, int], stride: int,
         mx = logit.max(1, keepdims=True)
         mx = np.where(np.isfinite(mx), mx, 0.0)
         w = np.where(ok, np.exp(logit - mx), 0.0)
+    idx = (iy.clip(0, gh - 1) * gw + ix.clip(0, gw - 1)).astype(np.int64)
+    if 0 < cfg.top_k < w.shape[1]:
+        keep = np.argpartition(-w, cfg.top_k - 1, axis=1)[:, : cfg.top_k]
+        w, idx = np.take_along_axis(w, keep, 1), np.take_along_axis(idx, keep, 1)
     s = w.sum(1, keepdims=True)
     w = np.where(s > 0, w / np.maximum(s, 1e-12), 0.0)
-    return (iy.clip(0, gh - 1) * gw + ix.clip(0, gw - 1)).astype(np.int64), w.astype(np.float32)
+    return idx, w.astype(np.float32)
 
 
 def apply_weights(pix: np.ndarray, idx: np.ndarray, w: np.ndarray, grid_tracks: np.ndarray, grid_vis: np.ndarray,
