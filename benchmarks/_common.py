@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import json
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -16,6 +19,17 @@ from trackingworld.pipeline.tracks import track_video
 
 # the optimisation's stages in timings.json (what "optimisation [s]" adds up)
 OPT_STAGES = ("labels", "stage1", "stage2", "classify", "rebuild_static", "stage3", "video_depth")
+
+
+def scratch_dir(prefix: str, keep: bool = False) -> Path:
+    """A fresh folder for a bench's scenes, tracks and runs, removed when the script exits unless ``keep``
+    (``--keep``: its path is printed, to look at the runs or profile them)."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    if keep:
+        print(f"[bench] scratch folder kept: {path}", file=sys.stderr)
+    else:
+        atexit.register(shutil.rmtree, path, True)
+    return path
 
 
 def tracks_file(scene: Path, path: Path, first_frame_only: bool = False) -> Path:

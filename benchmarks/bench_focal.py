@@ -13,12 +13,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from _common import fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
 
@@ -41,8 +39,9 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="default")
     ap.add_argument("--fovs", type=float, nargs="+", default=[40.0, 60.0, 90.0])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
-    work = Path(tempfile.mkdtemp(prefix="bench_focal_"))
+    work = scratch_dir("bench_focal_", a.keep)
     results: dict = {}
     for fov in a.fovs:
         scene = render_and_write(work / f"scene{fov:g}", a.preset, a.seed, fov_deg=fov, verbose=False)

@@ -13,13 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-from _common import fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from _common import fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
@@ -49,8 +47,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--preset", default="default")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
-    work = Path(tempfile.mkdtemp(prefix="bench_priors_"))
+    work = scratch_dir("bench_priors_", a.keep)
     scene = render_and_write(work / "scene", a.preset, a.seed)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))

@@ -13,12 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
 
@@ -55,8 +54,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, nargs="+", default=[30, 60, 120])
     ap.add_argument("--size", type=int, nargs=2, default=[320, 240], metavar=("W", "H"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
-    work = Path(tempfile.mkdtemp(prefix="bench_scaling_"))
+    work = scratch_dir("bench_scaling_", a.keep)
     full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False)
     results = {}
     for T in sorted(a.frames):
