@@ -69,9 +69,9 @@ class OptimConfig:
     dc_target: str = "prior"  # prior: the raw prior (paper) | aligned: prior rescaled by the static tracks (appendix)
     # speed-up (appendix): one optimised static track per (query frame, round(xy / cell)) cell
     downsample_cell: int = 8  # 0: optimise every static track
-    # of their observations, keep those of the cell_cap longest tracks visible in each (frame, cell) cell (not
-    # in the paper; 0: all): the optimised observations per frame stay bounded as the video grows
-    # (densify.cell_cap_mask). The moving-background test still sees every observation.
+    # of their observations, keep in each (frame, cell) cell those of the cell_cap tracks nearest their own query
+    # frame (then the longest) (not in the paper; 0: all): the optimised observations per frame stay bounded
+    # as the video grows (densify.cell_cap_mask). The moving-background test still sees every observation.
     cell_cap: int = 1
     idw_k: int = 3
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic

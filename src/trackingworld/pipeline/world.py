@@ -153,7 +153,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         if refine_focal:
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
-        if cfg.cell_cap > 0:  # the moving-background test on every observation of the optimised tracks
+        if not np.array_equal(obs2, vis[s2]):  # capped: the moving-background test on every observation
             full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
             moving_s2 = _moving(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
         poses = lie.w2c_to_c2w(R, t)
@@ -221,8 +221,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
             cd = dyn[ctrl]
             obs = cell_cap_mask(tr.tracks[cd], vis[cd], qf[cd], cfg.dynamic_cell, cfg.cell_cap)
-            ctrl, obs = ctrl[obs.any(1)], obs[obs.any(1)]
-            cd = dyn[ctrl]
+            has = obs.any(1)
+            ctrl, cd, obs = ctrl[has], cd[has], obs[has]
             xyz[cd] = _dynamic_tracks(uv[cd], obs, target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,
                                       log, info)
             # every other visible observation of a dynamic track follows the optimised ones
@@ -230,8 +230,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             follow[ctrl] &= ~obs
             if follow.any():
                 moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
-                xyz[dyn] = np.where(follow[..., None], moved, xyz[dyn])
-                xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
+                xyz[dyn] = hold_invisible(np.where(follow[..., None], moved, xyz[dyn]), vis[dyn])
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
 
