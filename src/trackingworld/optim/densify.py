@@ -75,26 +75,46 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
 
 
 def thin_references(uv: np.ndarray, cell: float) -> np.ndarray:
-    """Indices keeping one reference per ``cell`` px square (fewer, evenly spread references)."""
+    """Indices keeping one reference per ``cell`` px square (the first one; fewer, evenly spread references)."""
     if cell <= 1 or len(uv) == 0:
         return np.arange(len(uv))
-    _, first = np.unique(np.floor(uv / cell).astype(np.int64), axis=0, return_index=True)
+    c = np.floor(uv / cell).astype(np.int64)
+    c -= c.min(0)
+    _, first = np.unique(c[:, 1] * (c[:, 0].max() + 1) + c[:, 0], return_index=True)
     return first
 
 
-def ratio_maps(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, ref_vis: np.ndarray,
+def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Visible observations of tracks ``uv [N,T,2]`` / ``vis [N,T]`` thinned to one per ``cell`` px square of
+    each frame: (track [R], frame [R]) index arrays in frame order. What the video depth needs of a dense set
+    of tracks, whose visible observations grow faster than the frames times the pixels."""
+    n_out, t_out = [], []
+    for t in range(vis.shape[1]):
+        v = np.flatnonzero(vis[:, t])
+        v = v[thin_references(uv[v, t], cell)]
+        n_out.append(v)
+        t_out.append(np.full(len(v), t))
+    return np.concatenate(n_out), np.concatenate(t_out)
+
+
+def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray,
                prior: np.ndarray, K: np.ndarray, k: int = 4, cell: float = 4.0) -> np.ndarray:
-    """Per-pixel scale ratio ``[T,H,W]`` from reference tracks (uv [R,T,2], depth [R,T] prior, ratio [R,T],
-    vis [R,T]) over the prior ``[T,H,W]``: the appendix's consistent video depth is ``ratio * prior``."""
+    """Per-pixel scale ratio ``[T,H,W]`` from reference observations (frame [M] int, uv [M,2] px, depth [M]
+    prior metres, ratio [M]; non-finite ratios are skipped) over the prior ``[T,H,W]``: the appendix's
+    consistent video depth is ``ratio * prior``. Frames without a reference keep ratio 1."""
     T, H, W = prior.shape
     ys, xs = np.mgrid[0:H, 0:W]
     pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
     out = np.ones((T, H, W), np.float32)
+    ok = np.isfinite(ref_ratio)
+    frame, ref_uv, ref_depth, ref_ratio = frame[ok], ref_uv[ok], ref_depth[ok], ref_ratio[ok]
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(T + 1))
     for t in range(T):
-        v = np.flatnonzero(ref_vis[:, t] & np.isfinite(ref_ratio[:, t]))
+        v = order[bounds[t]:bounds[t + 1]]
         if len(v) == 0:
             continue
-        v = v[thin_references(ref_uv[v, t], cell)]
-        out[t] = propagate_ratio(ref_uv[v, t], ref_depth[v, t], ref_ratio[v, t], pix, prior[t].ravel(), K,
+        v = v[thin_references(ref_uv[v], cell)]
+        out[t] = propagate_ratio(ref_uv[v], ref_depth[v], ref_ratio[v], pix, prior[t].ravel(), K,
                                  k).reshape(H, W)
     return out

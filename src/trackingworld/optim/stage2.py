@@ -31,6 +31,7 @@ Reference solver (``adam``, the paper's way): Adam on poses, points and explicit
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -234,14 +235,57 @@ def _damp(H: torch.Tensor, mu: float) -> torch.Tensor:
     return H + torch.diag_embed(mu * d + 1e-12 * (1 + d.abs().amax(-1, keepdim=True)))
 
 
+def _point_pose_operator(G: torch.Tensor, pt: torch.Tensor, fr: torch.Tensor, N: int, T: int):
+    """The point-pose coupling ``B [3N, 6T]`` with block (pt_m, fr_m) = ``G[m]^T`` (G [M,6,3]), and its
+    transpose, as sparse CSR matrices: the reduced pose system's product ``B^T B v`` then costs two sparse
+    matrix-vector products (about 3x faster on a CPU than gathering and scattering the 6x3 blocks, and linear
+    in the observations, unlike forming the reduced matrix, whose pairs of observations grow with their
+    square). The layout is written directly (no sort of the entries): rows of B are (point, axis j) with the
+    point's observations in frame order, 6 entries (pose coordinate i) each; rows of B^T are (frame, i) with
+    the frame's observations in point order, 3 entries (j) each."""
+    M, dev = len(pt), pt.device
+    ar = torch.arange(M, device=dev)
+    i6 = torch.arange(6, device=dev)[None, :, None]
+    j3 = torch.arange(3, device=dev)[None, None, :]
+
+    def layout(major, minor, n_major):
+        o = torch.argsort(major * max(N, T) + minor)  # observations by (major, minor)
+        cnt = torch.bincount(major, minlength=n_major)
+        start = torch.cumsum(cnt, 0) - cnt
+        rank = torch.empty_like(ar)
+        rank[o] = ar - start[major[o]]
+        return cnt, start, rank
+
+    def csr(pos, col, cnt, start, width, shape):
+        vals = torch.empty(M * 18, dtype=G.dtype, device=dev)
+        vals[pos.reshape(-1)] = G.reshape(-1)
+        cols = torch.empty(M * 18, dtype=torch.long, device=dev)
+        cols[pos.reshape(-1)] = col.reshape(-1)
+        sub = torch.arange(18 // width, device=dev)  # rows per point (3) or per frame (6)
+        crow = (18 * start[:, None] + width * sub[None] * cnt[:, None]).reshape(-1)
+        crow = torch.cat([crow, torch.full((1,), M * 18, dtype=torch.long, device=dev)])
+        return torch.sparse_csr_tensor(crow, cols, vals, shape, check_invariants=False)
+
+    cnt, start, rank = layout(pt, fr, N)  # B: row 3 pt + j, entry 6 rank + i
+    pos = 18 * start[pt][:, None, None] + 6 * cnt[pt][:, None, None] * j3 + 6 * rank[:, None, None] + i6
+    B = csr(pos, (6 * fr[:, None, None] + i6).expand(M, 6, 3), cnt, start, 6, (3 * N, 6 * T))
+    cnt, start, rank = layout(fr, pt, T)  # B^T: row 6 fr + i, entry 3 rank + j
+    pos = 18 * start[fr][:, None, None] + 3 * cnt[fr][:, None, None] * i6 + 3 * rank[:, None, None] + j3
+    BT = csr(pos, (3 * pt[:, None, None] + j3).expand(M, 6, 3), cnt, start, 3, (6 * T, 3 * N))
+    return B, BT
+
+
 def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor,
                 fb: _FocalBlocks | None = None):
     """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by PCG.
     Returns (dc [T,6], dx [N,3], dphi float)."""
-    Hxx_inv = torch.linalg.inv(_damp(Hxx, mu))
+    # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
+    # singular, e.g. a point seen along one ray without depth consistency)
+    lam, V = torch.linalg.eigh(_damp(Hxx, mu))
+    L = V * lam.clamp_min(1e-300).rsqrt()[:, None, :]
+    Hxx_inv = L @ L.transpose(1, 2)
     Hcc_d = _damp(Hcc, mu)
-    Hinv_m = Hxx_inv[p.pt]  # [M,3,3]
-    T = p.n_frames
+    T, N = p.n_frames, p.n_points
     fmask = free[:, None].to(Hcc.dtype)
     if fb is None:  # no focal unknown: zero couplings keep one code path
         fb = _FocalBlocks(torch.zeros((), dtype=Hcc.dtype, device=Hcc.device), torch.zeros_like(Hcc[0, 0, 0]),
@@ -250,6 +294,12 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     else:
         use_f = True
     Hff_d = fb.Hff * (1 + mu) + 1e-12
+    # with G = Hcx L per observation the reduced pose system is Hcc - B^T B (B from G)
+    G = Hcx @ L[p.pt]  # [M,6,3]
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        B, BT = _point_pose_operator(G, p.pt, p.fr, N, T)
+    w = (L.transpose(1, 2) @ fb.Hxf[..., None])[..., 0].reshape(-1)  # L^T Hxf, the focal column of B
 
     # the unknown is packed as [T+1, 6]: rows 0..T-1 the poses, row T column 0 phi (the rest unused)
     def unpack(v):
@@ -257,17 +307,14 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
 
     def matvec(v):
         vc, vf = unpack(v)
-        a = (Hcx.transpose(1, 2) @ vc[p.fr][..., None])[..., 0]
-        b = torch.zeros_like(gx).index_add_(0, p.pt, a) + fb.Hxf * vf
-        c = (Hxx_inv @ b[..., None])[..., 0]
-        d = (Hcx @ c[p.pt][..., None])[..., 0]
+        u = B @ vc.reshape(-1) + w * vf
         out = torch.zeros_like(v)
-        out[:T] = ((Hcc_d @ vc[..., None])[..., 0] + fb.Hcf * vf - torch.zeros_like(vc).index_add_(0, p.fr, d)) * fmask
+        out[:T] = ((Hcc_d @ vc[..., None])[..., 0] + fb.Hcf * vf - (BT @ u).view(T, 6)) * fmask
         if use_f:
-            out[T, 0] = (fb.Hcf * vc).sum() + Hff_d * vf - (fb.Hxf * c).sum()
+            out[T, 0] = (fb.Hcf * vc).sum() + Hff_d * vf - (w * u).sum()
         return out
 
-    blocks = Hcc_d - torch.zeros_like(Hcc).index_add_(0, p.fr, Hcx @ Hinv_m @ Hcx.transpose(1, 2))
+    blocks = Hcc_d - torch.zeros_like(Hcc).index_add_(0, p.fr, G @ G.transpose(1, 2))
     eye = torch.eye(6, dtype=Hcc.dtype, device=Hcc.device)
     blocks = torch.where(free[:, None, None], blocks, eye)
     B_inv = torch.linalg.inv(blocks)

@@ -198,10 +198,12 @@ def normal_equations(p: DynProblem):
     return A, b
 
 
-def solve_amg(p: DynProblem, d0: torch.Tensor, tol: float = 1e-8, maxiter: int = 200) -> torch.Tensor:
-    """Exact minimiser over the ray depths: the explicit normal equations solved by conjugate gradients
+def solve_amg(p: DynProblem, d0: torch.Tensor, tol: float = 1e-5, maxiter: int = 200) -> torch.Tensor:
+    """Minimiser over the ray depths: the explicit normal equations solved by conjugate gradients
     preconditioned with smoothed-aggregation algebraic multigrid (pyamg), which handles the smooth, weakly
-    constrained modes (a whole object sliding along its rays) that stall a Jacobi preconditioner."""
+    constrained modes (a whole object sliding along its rays) that stall a Jacobi preconditioner. ``tol`` is
+    the relative residual: at 1e-5 every depth lies within 1e-4 (relative) of the exact minimiser's (6e-5 at
+    most, measured on 165k unknowns of a 120-frame scene, 75 iterations instead of 135 at 1e-8)."""
     import pyamg
     from scipy.sparse.linalg import cg
 

@@ -23,6 +23,7 @@ from trackingworld.optim.densify import (
     propagate_ratio,
     ratio_maps,
     thin_references,
+    thinned_observations,
 )
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
@@ -230,26 +231,30 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             follow[ctrl] &= ~obs
             if follow.any():
                 moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
-                xyz[dyn] = hold_invisible(np.where(follow[..., None], moved, xyz[dyn]), vis[dyn])
+                xyz[dyn] = hold_invisible(moved, vis[dyn])
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
 
     with tm("video_depth"):
-        z_all = camera_depths(xyz, poses)
-        ratio = np.where(vis, z_all / np.maximum(D, 1e-6), np.nan)
-        depth = ratio_maps(uv, D, ratio, vis, prior.astype(np.float64), K) * prior
+        # references: one visible observation per 4 px square of each frame, z of its world point / prior
+        n, t = thinned_observations(uv, vis, 4.0)
+        w2c = invert_pose(poses)[t, 2]
+        z = (w2c[:, :3] * xyz[n, t]).sum(-1) + w2c[:, 3]
+        ratio = z / np.maximum(D[n, t], 1e-6)
+        depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "info": info}
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
-    """World positions ``[Nd,T,3]`` of the dynamic tracks ``dyn`` at the observations ``follow [Nd,T]`` (zero
-    elsewhere): their own pixel ray at their target depth (``target [Nd,T]``) times the IDW-propagated
-    correction ``z_opt / target`` of the optimised control observations (``dyn[ctrl]`` where ``ref_obs``)."""
+    """World positions ``[Nd,T,3]`` of the dynamic tracks ``dyn``: ``xyz[dyn]`` except at the observations
+    ``follow [Nd,T]``, which get their own pixel ray at their target depth (``target [Nd,T]``) times the
+    IDW-propagated correction ``z_opt / target`` of the optimised control observations (``dyn[ctrl]`` where
+    ``ref_obs``)."""
     T = follow.shape[1]
     cd = dyn[ctrl]
     corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
-    out = np.zeros((len(dyn), T, 3))
+    out = xyz[dyn]
     for t in range(T):
         w = np.flatnonzero(follow[:, t])
         v = np.flatnonzero(ref_obs[:, t])

@@ -45,13 +45,13 @@ def hold_invisible(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Fill the frames where a track is not visible with its value at the nearest visible frame in time
     (ties go to the earlier frame). values [N,T,C], visible [N,T]; tracks never visible are left as is."""
     N, T = visible.shape
-    idx = np.arange(T)[None].repeat(N, 0)
-    prev = np.where(visible, idx, -1)
-    prev = np.maximum.accumulate(prev, axis=1)
-    nxt = np.where(visible, idx, T)
-    nxt = np.minimum.accumulate(nxt[:, ::-1], axis=1)[:, ::-1]
-    d_prev = np.where(prev >= 0, idx - prev, T + 1)
-    d_next = np.where(nxt < T, nxt - idx, T + 1)
-    src = np.where(d_prev <= d_next, prev, nxt)
+    vis = np.ascontiguousarray(visible.T)  # [T,N]: the scans below run along axis 0, vectorised over tracks
+    idx = np.arange(T, dtype=np.int32)[:, None]
+    prev = np.where(vis, idx, np.int32(-1))
+    np.maximum.accumulate(prev, axis=0, out=prev)
+    nxt = np.where(vis, idx, np.int32(T))[::-1]
+    nxt = np.minimum.accumulate(nxt, axis=0)[::-1]
+    use_next = (prev < 0) | ((nxt < T) & (nxt - idx < idx - prev))
+    src = np.where(use_next, nxt, prev)
     src = np.where((src < 0) | (src >= T), idx, src)
-    return np.take_along_axis(values, src[..., None], axis=1)
+    return np.take_along_axis(values, np.ascontiguousarray(src.T)[..., None], axis=1)
