@@ -154,7 +154,7 @@ def solve_clips_lm(b: ClipBatch, K: torch.Tensor, iters: int, tol: float, R=None
         # a clip has converged once a step changes its cost by less than tol (relative), taken or not: at its
         # minimum every step is rejected by rounding alone, and waiting for its damping to blow up cost 12
         # wasted iterations of the whole batch on a 30-frame scene
-        done = done | ((cost - new).abs() < tol * cost.clamp_min(1e-12)) | (mu > 1e8)
+        done = done | ((cost - new).abs() < tol * cost + 1e-12) | (mu > 1e8)  # 1e-12 px^2: exact data
         cost = torch.where(ok, new, cost)
         mu = torch.where(ok, (mu / 3).clamp_min(1e-7), mu * 4)
         if log:
