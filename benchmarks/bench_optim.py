@@ -1,5 +1,7 @@
 """Benchmark of the world-centric optimiser (issue 4), run on demand:
-``.venv/bin/python benchmarks/bench_optim.py [--preset default] [--quick]``.
+``.venv/bin/python benchmarks/bench_optim.py [--preset default] [--quick]``, or over several scenes of a preset
+``.venv/bin/python benchmarks/bench_optim.py --seeds 0 1 2 3`` (the full method and the baseline per seed, with
+means: ``benchmarks/results/optim_<preset>_seeds.md``).
 
 On one synthetic scene, with the same dense 2D tracks for every row (tracked once, then passed as a tracks
 file), runs: the full method with the structured solver (default), the same with the paper's Adam schedule
@@ -42,8 +44,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="skip the Adam row (minutes)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
+    ap.add_argument("--seeds", type=int, nargs="+", help="the full method and the baseline on these seeds' scenes")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_optim_", a.keep)
+    if a.seeds:
+        return over_seeds(work, a.preset, a.seeds)
     scene = render_and_write(work / "scene", a.preset, a.seed)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
@@ -52,14 +57,49 @@ def main(argv=None) -> int:
     for name, (method, opts, tef_off) in ROWS.items():
         if a.quick and opts.get("solver") == "adam":
             continue
-        cfg = RunConfig(method=method, inputs=InputConfig(
-            input=str(inp / "frames"), depth=str(inp / "depth.npy"), masks=str(inp / "masks"),
-            intrinsics=str(inp / "intrinsics.txt")),
-            track2d=Track2DConfig(tracker="file", tracks_file=str(tracks[tef_off])),
-            optim=OptimConfig(verbose=False, **opts))
-        r = run_and_evaluate(cfg, work / f"run{len(results)}", scene, name)
+        r = run_and_evaluate(_config(method, inp, tracks[tef_off], **opts), work / f"run{len(results)}", scene, name)
         results[name] = {**r, "optim_s": sum(r["timings"].get(k, 0.0) for k in OPT_STAGES)}
     write(results, a.preset + (" --quick" if a.quick else ""), frames.shape)
+    return 0
+
+
+def _config(method: str, inp, tracks, **opts) -> RunConfig:
+    """A run of ``method`` on a scene's given priors (``inp``: its input folder) and a tracks file."""
+    return RunConfig(method=method, inputs=InputConfig(
+        input=str(inp / "frames"), depth=str(inp / "depth.npy"), masks=str(inp / "masks"),
+        intrinsics=str(inp / "intrinsics.txt")),
+        track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)), optim=OptimConfig(verbose=False, **opts))
+
+
+def over_seeds(work, preset: str, seeds: list[int]) -> int:
+    """The full method beside the baseline on one scene per seed (same tracks for both), with the means."""
+    head = ("| seed | ATE [% path] | track depth AbsRel (prior) | x prior | video depth AbsRel (prior) | "
+            "world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | optimisation [s] | "
+            "baseline: ATE / track AbsRel / world |")
+    lines = md_table_start(f"# World-centric optimiser over seeds of the `{preset}` preset",
+                           f"Command: `.venv/bin/python benchmarks/bench_optim.py --preset {preset} --seeds "
+                           f"{' '.join(map(str, seeds))}`", head)
+    rows, out = [], {}
+    for sd in seeds:
+        scene = render_and_write(work / f"scene{sd}", preset, sd)
+        inp = scene / "input"
+        tracks = tracks_file(scene, work / f"tracks{sd}.npz", False)
+        full = run_and_evaluate(_config("trackingworld", inp, tracks), work / f"full{sd}", scene, f"seed {sd} full")
+        base = run_and_evaluate(_config("baseline", inp, tracks), work / f"base{sd}", scene, f"seed {sd} baseline")
+        m, b = full["metrics"], base["metrics"]
+        opt_s = sum(full["timings"].get(k, 0.0) for k in OPT_STAGES)
+        v = [m["camera"]["ate_pct_path"], m["track_depth"]["abs_rel_depth"], m["track_depth_prior"]["abs_rel_depth"],
+             m["video_depth"]["abs_rel_depth"], m["video_depth_prior"]["abs_rel_depth"],
+             m["world_3d"]["all"]["acc_avg"], m["world_3d"]["dynamic"]["acc_avg"],
+             m["labels"]["static_kept_static"], m["labels"]["bg_mover_recall"],
+             opt_s, b["camera"]["ate_pct_path"], b["track_depth"]["abs_rel_depth"], b["world_3d"]["all"]["acc_avg"]]
+        rows.append([np.nan if x is None else float(x) for x in v])
+        out[str(sd)] = {"full": {"metrics": m, "timings": full["timings"]}, "baseline": {"metrics": b}}
+    for sd, r in zip([*map(str, seeds), "mean"], [*rows, list(np.nanmean(np.array(rows), 0))], strict=True):
+        lines.append(f"| {sd} | {r[0]:.2f} | {r[1]:.4f} ({r[2]:.4f}) | {r[1] / r[2]:.2f} | {r[3]:.4f} ({r[4]:.4f}) | "
+                     f"{r[5]:.1f} / {r[6]:.1f} | {r[7]:.1f} | {r[8]:.1f} | {r[9]:.1f} | "
+                     f"{r[10]:.2f} / {r[11]:.4f} / {r[12]:.1f} |")
+    write_results(f"optim_{preset}_seeds", lines, out)
     return 0
 
 

@@ -33,16 +33,20 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     N, T = visible.shape
     H, W = masks.shape[1:]
     sta, dyn = mask_regions(masks, margin_px)
-    x = np.clip(np.round(tracks[..., 0]).astype(np.int64), 0, W - 1)
-    y = np.clip(np.round(tracks[..., 1]).astype(np.int64), 0, H - 1)
-    t = np.broadcast_to(np.arange(T), (N, T))
-    in_sta = sta[t, y, x] & visible
-    in_dyn = dyn[t, y, x] & visible
+    # only the visible observations count (the query frame is one of them): look them up by flat pixel index
+    n, t = np.nonzero(visible)
+    xy = tracks[n, t]
+    flat = (t * H + np.clip(np.round(xy[:, 1]).astype(np.int64), 0, H - 1)) * W
+    flat += np.clip(np.round(xy[:, 0]).astype(np.int64), 0, W - 1)
+    n_sta = np.bincount(n, weights=sta.ravel()[flat], minlength=N)
+    n_dyn = np.bincount(n, weights=dyn.ravel()[flat], minlength=N)
     nvis = np.maximum(visible.sum(1), 1)
     q = query_frame.astype(np.int64)
-    rows = np.arange(N)
-    q_static = sta[q, y[rows, q], x[rows, q]]
+    qxy = tracks[np.arange(N), q]
+    qx = np.clip(np.round(qxy[:, 0]).astype(np.int64), 0, W - 1)
+    qy = np.clip(np.round(qxy[:, 1]).astype(np.int64), 0, H - 1)
+    q_static = sta[q, qy, qx]
     labels = np.full(N, AMBIGUOUS, np.int8)
-    labels[q_static & (in_sta.sum(1) * 2 >= nvis)] = STATIC
-    labels[in_dyn.sum(1) * 2 > nvis] = DYNAMIC
+    labels[q_static & (n_sta * 2 >= nvis)] = STATIC
+    labels[n_dyn * 2 > nvis] = DYNAMIC
     return labels
