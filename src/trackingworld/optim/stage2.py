@@ -240,9 +240,9 @@ def _point_pose_operator(G: torch.Tensor, pt: torch.Tensor, fr: torch.Tensor, N:
     transpose, as sparse CSR matrices: the reduced pose system's product ``B^T B v`` then costs two sparse
     matrix-vector products (about 3x faster on a CPU than gathering and scattering the 6x3 blocks, and linear
     in the observations, unlike forming the reduced matrix, whose pairs of observations grow with their
-    square). The layout is written directly (no sort of the entries): rows of B are (point, axis j) with the
-    point's observations in frame order, 6 entries (pose coordinate i) each; rows of B^T are (frame, i) with
-    the frame's observations in point order, 3 entries (j) each."""
+    square). The layout is written directly (one sort of the observations, none of the 18 M entries): rows of
+    B are (point, axis j) with the point's observations in frame order, 6 entries (pose coordinate i) each;
+    rows of B^T are (frame, i) with the frame's observations in point order, 3 entries (j) each."""
     M, dev = len(pt), pt.device
     ar = torch.arange(M, device=dev)
     i6 = torch.arange(6, device=dev)[None, :, None]
