@@ -13,7 +13,7 @@ from trackingworld.cli.main import main
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt, project, transform
 from trackingworld.optim import lie, stage1, stage2, stage3
-from trackingworld.optim.densify import cell_cap_mask
+from trackingworld.optim.densify import cell_cap_mask, thinned_observations
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import build_clips, chain_clips, clip_frames, initial_poses, solve_clips_lm
 from trackingworld.synth import render_and_write
@@ -153,10 +153,24 @@ def test_stage3_solvers_agree_and_lower_the_objective():
 def test_label_tracks_from_masks():
     masks = np.zeros((3, 40, 40), bool)
     masks[:, 10:30, 10:30] = True
-    tracks = np.array([[[2.0, 2.0]] * 3, [[20.0, 20.0]] * 3, [[10.0, 20.0]] * 3])
-    vis = np.ones((3, 3), bool)
-    lab = label_tracks(tracks, vis, np.zeros(3, np.int64), masks, margin_px=2)
-    assert list(lab) == [STATIC, DYNAMIC, AMBIGUOUS]
+    # the 4th track lies in the mask only in frames where it is not visible: those do not count
+    tracks = np.array([[[2.0, 2.0]] * 3, [[20.0, 20.0]] * 3, [[10.0, 20.0]] * 3, [[2.0, 2.0], [20, 20], [20, 20]]])
+    vis = np.ones((4, 3), bool)
+    vis[3, 1:] = False
+    lab = label_tracks(tracks, vis, np.zeros(4, np.int64), masks, margin_px=2)
+    assert list(lab) == [STATIC, DYNAMIC, AMBIGUOUS, STATIC]
+
+
+def test_video_depth_references_one_visible_observation_per_cell():
+    rng = np.random.default_rng(0)
+    uv = rng.uniform(0, 40, (500, 3, 2))
+    vis = rng.random((500, 3)) < 0.6
+    n, t = thinned_observations(uv, vis, 8.0)
+    assert vis[n, t].all() and (np.diff(t) >= 0).all()
+    for f in range(3):
+        cells = {tuple(c) for c in np.floor(uv[vis[:, f], f] / 8).astype(int)}
+        got = [tuple(c) for c in np.floor(uv[n[t == f], f] / 8).astype(int)]
+        assert len(got) == len(set(got)) == len(cells)
 
 
 def test_cell_cap_keeps_the_freshest_tracks_of_every_visited_cell():

@@ -266,3 +266,14 @@ def test_cotracker3_bad_specs_give_one_line_errors(tmp_path):
     (tmp_path / "hubconf.py").write_text("dependencies = []\n")
     with pytest.raises(InputError, match="cannot load"):
         load_cotracker(f"hub:{tmp_path}")
+
+
+def test_hold_invisible_takes_the_nearest_visible_frame_earlier_on_ties():
+    vis = np.array([[0, 1, 0, 0, 1, 0], [0, 0, 0, 0, 0, 0], [1, 1, 1, 1, 1, 1]], bool)
+    values = np.arange(3 * 6, dtype=np.float64).reshape(3, 6, 1)
+    out = hold_invisible(values, vis)[..., 0]
+    assert out[0].tolist() == [1, 1, 1, 4, 4, 4]  # frame 2 is 1 from frame 1, 2 from frame 4
+    assert out[1].tolist() == values[1, :, 0].tolist()  # never visible: left as is
+    assert out[2].tolist() == values[2, :, 0].tolist()
+    tie = hold_invisible(values[:1], np.array([[1, 0, 1, 0, 0, 0]], bool))[0, :, 0]
+    assert tie.tolist() == [0, 0, 2, 2, 2, 2]  # frame 1 is one frame from 0 and from 2: the earlier wins
