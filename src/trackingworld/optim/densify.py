@@ -88,7 +88,7 @@ def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float) -> tuple[
     """Visible observations of tracks ``uv [N,T,2]`` / ``vis [N,T]`` thinned to one per ``cell`` px square of
     each frame: (track [R], frame [R]) index arrays in frame order. What the video depth needs of a dense set
     of tracks, whose visible observations grow faster than the frames times the pixels."""
-    n_out, t_out = [], []
+    n_out, t_out = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for t in range(vis.shape[1]):
         v = np.flatnonzero(vis[:, t])
         v = v[thin_references(uv[v, t], cell)]
