@@ -33,13 +33,17 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     N, T = visible.shape
     H, W = masks.shape[1:]
     sta, dyn = mask_regions(masks, margin_px)
-    # only the visible observations count (the query frame is one of them): look them up by flat pixel index
-    n, t = np.nonzero(visible)
-    xy = tracks[n, t]
-    flat = (t * H + np.clip(np.round(xy[:, 1]).astype(np.int64), 0, H - 1)) * W
-    flat += np.clip(np.round(xy[:, 0]).astype(np.int64), 0, W - 1)
-    n_sta = np.bincount(n, weights=sta.ravel()[flat], minlength=N)
-    n_dyn = np.bincount(n, weights=dyn.ravel()[flat], minlength=N)
+    # frame by frame on contiguous copies: the sure-static / sure-dynamic lookups of the visible observations
+    per_frame = np.ascontiguousarray(tracks.transpose(1, 0, 2))  # [T,N,2]
+    vis_t = np.ascontiguousarray(visible.T)
+    n_sta = np.zeros(N, np.int64)
+    n_dyn = np.zeros(N, np.int64)
+    for t in range(T):
+        x = np.clip(np.round(per_frame[t, :, 0]).astype(np.int64), 0, W - 1)
+        y = np.clip(np.round(per_frame[t, :, 1]).astype(np.int64), 0, H - 1)
+        flat = y * W + x
+        n_sta += sta[t].ravel()[flat] & vis_t[t]
+        n_dyn += dyn[t].ravel()[flat] & vis_t[t]
     nvis = np.maximum(visible.sum(1), 1)
     q = query_frame.astype(np.int64)
     qxy = tracks[np.arange(N), q]

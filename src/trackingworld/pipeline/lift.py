@@ -11,10 +11,11 @@ from trackingworld.tracking2d.flow_tracker import sample_image
 def sample_maps(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear sample of ``maps [T,H,W]`` at ``uv [N,T,2]`` (border replicated) -> ``[N,T]``."""
     N, T = uv.shape[:2]
-    out = np.zeros((N, T), np.float32)
+    per_frame = np.ascontiguousarray(uv.transpose(1, 0, 2), np.float32)  # [T,N,2]: one contiguous read per frame
+    out = np.empty((T, N), np.float32)
     for t in range(T):
-        out[:, t] = sample_image(maps[t].astype(np.float32), uv[:, t])
-    return out
+        out[t] = sample_image(maps[t].astype(np.float32), per_frame[t])
+    return np.ascontiguousarray(out.T)
 
 
 def lift_camera_frame(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
