@@ -98,10 +98,11 @@ def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float) -> tuple[
 
 
 def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray,
-               prior: np.ndarray, K: np.ndarray, k: int = 4, cell: float = 4.0) -> np.ndarray:
+               prior: np.ndarray, K: np.ndarray, k: int = 4) -> np.ndarray:
     """Per-pixel scale ratio ``[T,H,W]`` from reference observations (frame [M] int, uv [M,2] px, depth [M]
-    prior metres, ratio [M]; non-finite ratios are skipped) over the prior ``[T,H,W]``: the appendix's
-    consistent video depth is ``ratio * prior``. Frames without a reference keep ratio 1."""
+    prior metres, ratio [M]; non-finite ratios are skipped; thin them first, :func:`thinned_observations`)
+    over the prior ``[T,H,W]``: the appendix's consistent video depth is ``ratio * prior``. Frames without a
+    reference keep ratio 1."""
     T, H, W = prior.shape
     ys, xs = np.mgrid[0:H, 0:W]
     pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
@@ -114,7 +115,6 @@ def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref
         v = order[bounds[t]:bounds[t + 1]]
         if len(v) == 0:
             continue
-        v = v[thin_references(ref_uv[v], cell)]
         out[t] = propagate_ratio(ref_uv[v], ref_depth[v], ref_ratio[v], pix, prior[t].ravel(), K,
                                  k).reshape(H, W)
     return out

@@ -242,8 +242,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     with tm("video_depth"):
         # references: one visible observation per 4 px square of each frame, z of its world point / prior
         n, t = thinned_observations(uv, vis, 4.0)
-        w2c = invert_pose(poses)[t, 2]
-        z = (w2c[:, :3] * xyz[n, t]).sum(-1) + w2c[:, 3]
+        z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
         ratio = z / np.maximum(D[n, t], 1e-6)
         depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
