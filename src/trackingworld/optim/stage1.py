@@ -113,16 +113,21 @@ def _normal_equations(R, t, b: ClipBatch, K):
     for a, c in _pairs(L):
         r, m, Ya, Yc = pair_residuals(R, t, b, K, a, c)
         Jp = lie.project_jacobian(Yc, K)  # [C,P,2,3]
-        Jc = Jp @ lie.pose_jacobian(Yc)
-        eye = torch.eye(3, dtype=Ya.dtype, device=Ya.device).expand(Ya.shape[:-1] + (3, 3))
-        RaT = R[:, a, None].transpose(-1, -2)
-        dX = RaT @ torch.cat([lie.skew(Ya), -eye], -1)  # dX / dxi_a [C,P,3,6]
-        Ja = Jp @ R[:, c, None] @ dX
-        mw = m[..., None, None]
-        for i, Ji in ((a, Ja), (c, Jc)):
-            g[:, i] += (mw[..., 0] * (Ji.transpose(-1, -2) @ r[..., None])[..., 0]).sum(1)
-            for j, Jj in ((a, Ja), (c, Jc)):
-                H[:, i, j] += (mw * (Ji.transpose(-1, -2) @ Jj)).sum(1)
+        # rows written as cross products (j^T [Y]x = (j x Y)^T) instead of [C,P] batches of 3x3 products:
+        # d r / d xi_c = Jp [-[Yc]x, I]; d r / d xi_a = M [[Ya]x, -I] with M = Jp Rc Ra^T (Ya = Ra X + ta)
+        Jc = torch.cat([torch.linalg.cross(Yc[..., None, :].expand_as(Jp), Jp), Jp], -1)
+        M = (Jp.reshape(C, 2 * P, 3) @ (R[:, c] @ R[:, a].transpose(-1, -2))).reshape(Jp.shape)
+        Ja = torch.cat([torch.linalg.cross(M, Ya[..., None, :].expand_as(M)), -M], -1)
+        # both frames' Jacobians side by side: one batched [12, 2P] x [2P, 12] product per clip gives the four
+        # 6x6 blocks of the pair (instead of [C,P,6,6] products summed over P)
+        J = torch.cat([Ja, Jc], -1).reshape(C, 2 * P, 12)
+        JmT = (J * m.repeat_interleave(2, 1)[..., None]).transpose(1, 2)
+        Hp = JmT @ J
+        gp = (JmT @ r.reshape(C, 2 * P, 1))[..., 0]
+        for i, si in ((a, slice(0, 6)), (c, slice(6, 12))):
+            g[:, i] += gp[:, si]
+            for j, sj in ((a, slice(0, 6)), (c, slice(6, 12))):
+                H[:, i, j] += Hp[:, si, sj]
     H = H.permute(0, 1, 3, 2, 4).reshape(C, 6 * L, 6 * L)
     return H, g.reshape(C, 6 * L)
 
