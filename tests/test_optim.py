@@ -241,18 +241,9 @@ def test_video_alone_runs_weight_free(tiny_scene, tmp_path):
     assert m["camera"]["ate_pct_path"] < 15  # measured 6.7; identity poses (the baseline) give 50.8
 
 
-def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
-    uv, z, vis, c2w, _ = _scene(T=5, N=40, n_moving=0)
-    Kw = K.copy()
-    Kw[:2, :2] *= 0.8
-    p = stage2.BAProblem.from_tracks(uv, z, vis, Kw, OptimConfig(verbose=False), torch.float64, "cpu")
-    R, t = lie.c2w_to_w2c(c2w)
-    X = stage2.init_points(R, t, p)
-    free = torch.ones(5, dtype=torch.bool)
-    free[0] = False
-    Hcc, Hxx, Hcx, gc, gx, fb = stage2._linearize(R, t, X, p, focal=True)
-    dc, dx, df = stage2._schur_step(Hcc, Hxx, Hcx, gc, gx, p, 0.0, free, fb)
-    T, N = 5, p.n_points
+def _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free):
+    """The damping-free Gauss-Newton step of the full system (poses, points, focal), solved densely."""
+    T, N = p.n_frames, p.n_points
     n = 6 * T + 3 * N + 1
     H = torch.zeros(n, n, dtype=torch.float64)
     g = torch.zeros(n, dtype=torch.float64)
@@ -270,13 +261,29 @@ def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
         H[6 * i:6 * i + 6, o:o + 3] += Hcx[m]
         H[o:o + 3, 6 * i:6 * i + 6] += Hcx[m].T
     H[-1, -1], g[-1] = fb.Hff, fb.gf
-    keep = torch.arange(n) >= 6  # frame 0 fixed
+    keep = torch.ones(n, dtype=torch.bool)
+    keep[:6 * T] = free.repeat_interleave(6)
     sol = torch.zeros(n, dtype=torch.float64)
     reg = 1e-12 * torch.eye(int(keep.sum()), dtype=torch.float64)  # points seen nowhere have empty blocks
     sol[keep] = -torch.linalg.solve(H[keep][:, keep] + reg, g[keep])
-    assert abs(df - float(sol[-1])) < 1e-6 * max(1.0, abs(df))
-    assert torch.allclose(dc.reshape(-1), sol[:6 * T], atol=1e-6)
-    assert torch.allclose(dx.reshape(-1), sol[6 * T:-1], atol=1e-5)
+    return sol[:6 * T], sol[6 * T:-1], float(sol[-1])
+
+
+def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
+    uv, z, vis, c2w, _ = _scene(T=5, N=40, n_moving=0)
+    Kw = K.copy()
+    Kw[:2, :2] *= 0.8
+    p = stage2.BAProblem.from_tracks(uv, z, vis, Kw, OptimConfig(verbose=False), torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(c2w)
+    X = stage2.init_points(R, t, p)
+    free = torch.ones(5, dtype=torch.bool)
+    free[0] = False
+    Hcc, Hxx, Hcx, gc, gx, fb = stage2._linearize(R, t, X, p, focal=True)
+    dc, dx, df = stage2._schur_step(Hcc, Hxx, Hcx, gc, gx, p, 0.0, free, fb)
+    sc, sx, sf = _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free)
+    assert abs(df - sf) < 1e-6 * max(1.0, abs(df))
+    assert torch.allclose(dc.reshape(-1), sc, atol=1e-6)
+    assert torch.allclose(dx.reshape(-1), sx, atol=1e-5)
     # the sparse point-pose operator does not rely on the observations' order
     perm = torch.randperm(p.pt.shape[0], generator=torch.Generator().manual_seed(0))
     q = replace(p, pt=p.pt[perm], fr=p.fr[perm], uv=p.uv[perm], depth=p.depth[perm])
@@ -287,6 +294,39 @@ def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
     h = 1e-6
     num = (float(stage2.loss(R, t, X, p.with_focal_scale(h))) - float(stage2.loss(R, t, X, p.with_focal_scale(-h))))
     assert abs(num / (2 * h) - 2 * float(fb.gf)) < 1e-4 * abs(num / (2 * h))
+
+
+def test_coarse_space_preconditioner_gives_the_same_step_in_fewer_iterations(monkeypatch):
+    free = torch.ones(21, dtype=torch.bool)
+    free[0] = False
+    Z = stage2.coarse_basis(free, 8, torch.float64, "cpu")  # nodes at frames 0, 8, 16, 20
+    hats = Z[0::6, 0::6]  # [T,S] one pose coordinate
+    assert Z.shape == (126, 24) and torch.allclose(Z[1::6, 1::6], hats)
+    assert torch.all(hats[0] == 0) and torch.allclose(hats[1:].sum(1), torch.ones(20, dtype=torch.float64))
+    assert hats[12, 1] == 0.5 and hats[12, 2] == 0.5 and hats[18, 3] == 0.5
+    assert stage2.coarse_basis(free[:8], 8, torch.float64, "cpu") is None
+
+    T = 48
+    uv, z, vis, c2w, _ = _scene(T=T, N=400, n_moving=0, seed=1)
+    p = stage2.BAProblem.from_tracks(uv, z, vis, K, OptimConfig(verbose=False), torch.float64, "cpu")
+    R, t = lie.c2w_to_w2c(c2w)
+    X = stage2.init_points(R, t, p)
+    R, t = lie.update(R, t, 0.01 * torch.randn(T, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(0)))
+    free = torch.ones(T, dtype=torch.bool)
+    free[0] = False
+    Hcc, Hxx, Hcx, gc, gx, fb = stage2._linearize(R, t, X, p, focal=True)
+    sc, sx, sf = _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free)
+    its = []
+    pcg = stage2.pcg
+    monkeypatch.setattr(stage2, "pcg", lambda *a, **k: pcg(*a, **k, callback=lambda it, x: its.append(it)))
+    for spacing in (0, 8):
+        monkeypatch.setattr(stage2, "COARSE_SPACING", spacing)
+        its.append(-1)
+        dc, dx, df = stage2._schur_step(Hcc, Hxx, Hcx, gc, gx, p, 0.0, free, fb)
+        assert torch.allclose(dc.reshape(-1), sc, atol=1e-6) and abs(df - sf) < 1e-6 * max(1.0, abs(sf))
+    split = its.index(-1, 1)
+    n_jacobi, n_coarse = len(its[1:split]), len(its[split + 1:])  # block Jacobi alone: 42, coarse space: 21
+    assert n_coarse < 0.6 * n_jacobi, (n_jacobi, n_coarse)
 
 
 @pytest.mark.parametrize("factor", [0.85, 1.2])
