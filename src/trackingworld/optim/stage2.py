@@ -19,7 +19,8 @@ form: an offset of o metres across the ray moves the projection by o f / z pixel
 is bundle adjustment over poses and points with a Huber kernel, solved by Levenberg-Marquardt with iteratively
 reweighted normal equations, the points eliminated by the Schur complement (3x3 blocks) and the reduced pose
 system solved by conjugate gradients (memory and time linear in the number of observations), preconditioned
-by block Jacobi plus an exact solve on a coarse space of smooth trajectory corrections (:func:`coarse_basis`). The offsets are then read off the final residuals: ``|O| = (r - c) z / f``.
+by block Jacobi plus an exact solve on a coarse space of smooth trajectory corrections (:func:`coarse_basis`).
+The offsets are then read off the final residuals: ``|O| = (r - c) z / f``.
 
 Focal length (optional, ``refine_focal``): one more unknown, ``phi = log(f / f0)`` scaling fx and fy together
 (principal point fixed). The projection's derivative is ``d uv / d phi = uv - c``; in the structured solver the
@@ -349,8 +350,9 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
             HV = (Hcc_d @ V.reshape(T, 6, k)).reshape(6 * T, k)
             return (HV - BT @ (B @ V)) * fmask6
 
-        # in column chunks: B @ V is [3N, k]
-        Ac = Z.T @ torch.cat([poses_times(Z[:, i:i + 48]) for i in range(0, Z.shape[1], 48)], 1)
+        # in column chunks: B @ V is [3N, k], kept to about 8M numbers
+        k = max(1, min(48, 2**23 // max(3 * N, 1)))
+        Ac = Z.T @ torch.cat([poses_times(Z[:, i:i + k]) for i in range(0, Z.shape[1], k)], 1)
         Lc, bad = torch.linalg.cholesky_ex(0.5 * (Ac + Ac.T))
         if int(bad):
             Z = None
