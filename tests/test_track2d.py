@@ -107,6 +107,26 @@ def occluded_video(T=20, H=64, W=96, occ_speed=-4.0, occ_size=24, seed=1):
     return np.stack(frames), shift, left
 
 
+def test_flows_over_the_skip_stride_bound_the_drift_of_chained_steps():
+    frames = textured_shift_video(T=13, dx=1.5)
+    truth = 20.0 + 1.5 * np.arange(13)
+    errors = {}
+    for stride in (0, 4):
+        tracker = FlowTracker(FlowTrackerConfig(skip_stride=stride, max_colour_diff=0, max_query_colour_diff=0))
+        v = tracker._prepare(frames)
+        # exact flows, then a bias of 0.1 px per consecutive step in both directions of time
+        v.fwd[:], v.bwd[:] = (1.6, 0.0), (-1.6, 0.0)
+        v.skip_fwd[:], v.skip_bwd[:] = (6.0, 0.0), (-6.0, 0.0)
+        r = tracker.track(frames, np.array([[0, truth[0], 30.0], [12, truth[12], 30.0]]))
+        assert r.visible.all()
+        errors[stride] = r.tracks[:, :, 0] - truth
+    t = np.arange(13)
+    np.testing.assert_allclose(errors[0][0], 0.1 * t, atol=1e-4)  # forward from frame 0: the bias adds up
+    np.testing.assert_allclose(errors[0][1], -0.1 * (12 - t), atol=1e-4)  # backward from frame 12
+    np.testing.assert_allclose(errors[4][0], 0.1 * (t % 4), atol=1e-4)  # reset at every multiple of 4
+    np.testing.assert_allclose(errors[4][1], -0.1 * ((12 - t) % 4), atol=1e-4)
+
+
 def test_flow_tracker_finds_points_again_after_an_occluder_passes():
     frames, shift, left = occluded_video()
     xs = np.arange(24.0, 40.0, 2.0)
