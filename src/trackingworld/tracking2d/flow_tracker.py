@@ -197,6 +197,15 @@ class FlowTracker:
         good &= np.linalg.norm(r - q, axis=1) < c.relocate_max_shift_px
         return np.where(good[:, None], r, q), good
 
+    def _step(self, flow_a: np.ndarray, flow_b: np.ndarray, p: np.ndarray):
+        """Points ``p [M,2]`` moved by ``flow_a [H,W,2]``: (displacement [M,2], new positions [M,2], whether the
+        way back by ``flow_b`` returns within the forward-backward tolerance [M])."""
+        c = self.config
+        fa = sample_flow(flow_a, p)
+        q = p + fa
+        err = np.linalg.norm(fa + sample_flow(flow_b, q), axis=1)
+        return fa, q, err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)
+
     def _propagate(self, video: _Video, p0: np.ndarray, t0: int, direction: int, tracks, vis, sel) -> None:
         """Track ``p0 [M,2]`` from frame ``t0`` one way in time; writes the first ``len(sel)`` points into
         ``tracks[sel]`` / ``vis[sel]`` (the rest are support points)."""
@@ -225,10 +234,8 @@ class FlowTracker:
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
-            fa = sample_flow(flows_a[k], p)
-            q = p + fa
-            err = np.linalg.norm(fa + sample_flow(flows_b[k], q), axis=1)
-            ok = (err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)) & ~lost
+            fa, q, ok = self._step(flows_a[k], flows_b[k], p)
+            ok &= ~lost
             cb = None
             if c.max_colour_diff > 0:
                 ca = sample_image(video.blur[t], p).astype(np.float32)
@@ -283,10 +290,7 @@ class FlowTracker:
                 w = np.flatnonzero(ok & ~moved & (run >= s - 1))
                 if w.size:
                     j = min(anchor_t, tn) // s
-                    fs = sample_flow(skip_a[j], anchor_p[w])
-                    qs = anchor_p[w] + fs
-                    es = np.linalg.norm(fs + sample_flow(skip_b[j], qs), axis=1)
-                    good = (es < c.fb_abs_px + c.fb_rel * np.linalg.norm(fs, axis=1))
+                    _, qs, good = self._step(skip_a[j], skip_b[j], anchor_p[w])
                     good &= np.linalg.norm(qs - q[w], axis=1) < c.skip_max_shift_px
                     q[w[good]] = qs[good]
                     moved[w[good]] = True
@@ -298,8 +302,8 @@ class FlowTracker:
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
             gap = np.where(ok, 0, gap + 1)
             run = np.where(ok, run + 1, 0)
-            if s and (t + direction) % s == 0:
-                anchor_t, anchor_p = t + direction, p.copy()
+            if s and tn % s == 0:
+                anchor_t, anchor_p = tn, p.copy()
             if drift_check:  # the colour at the new position: sampled above unless the position moved since
                 resample = np.flatnonzero(ok & moved) if cb is not None else np.flatnonzero(ok)
                 c_new = cb if cb is not None else np.zeros_like(c_query)
