@@ -39,11 +39,12 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     n_sta = np.zeros(N, np.int64)
     n_dyn = np.zeros(N, np.int64)
     for t in range(T):
-        x = np.clip(np.round(per_frame[t, :, 0]).astype(np.int64), 0, W - 1)
-        y = np.clip(np.round(per_frame[t, :, 1]).astype(np.int64), 0, H - 1)
+        v = np.flatnonzero(vis_t[t])
+        x = np.clip(np.round(per_frame[t, v, 0]).astype(np.int64), 0, W - 1)
+        y = np.clip(np.round(per_frame[t, v, 1]).astype(np.int64), 0, H - 1)
         flat = y * W + x
-        n_sta += sta[t].ravel()[flat] & vis_t[t]
-        n_dyn += dyn[t].ravel()[flat] & vis_t[t]
+        n_sta[v] += sta[t].ravel()[flat]
+        n_dyn[v] += dyn[t].ravel()[flat]
     nvis = np.maximum(visible.sum(1), 1)
     q = query_frame.astype(np.int64)
     qxy = tracks[np.arange(N), q]
