@@ -209,6 +209,15 @@ def test_track2d_cli(tiny_scene, tmp_path):
                  "--max-frames", "4"]) == 0
     z = np.load(out)
     assert z["tracks"].shape[1] == 4 and z["visible"].dtype == bool and z["queries"].shape[1] == 3
+    # the skip flows are a switch: over 8 frames, stride 4 (on) and 0 (off) move the first frame's grid differently
+    runs = {}
+    for stride in ("4", "0"):
+        o = tmp_path / f"s{stride}.npz"
+        assert main(["track2d", str(tiny_scene / "input" / "frames"), "--out", str(o), "--quiet", "--max-frames",
+                     "8", "--flow-skip-stride", stride]) == 0
+        z = np.load(o)
+        runs[stride] = z["tracks"][z["queries"][:, 0] == 0]
+    assert runs["4"].shape == runs["0"].shape and not np.array_equal(runs["4"], runs["0"])
 
 
 HUBCONF = '''

@@ -39,6 +39,7 @@ class Track2DConfig:
     dense_mode: str = "upsample"  # upsample (grid + convex upsampler) | direct (every pixel tracked)
     upsampler: str = "convex"  # convex | bilinear
     flow_preset: str = "fine"
+    flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
 
 
 @dataclass

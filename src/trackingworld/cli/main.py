@@ -145,6 +145,8 @@ def _track_args(p) -> None:
     g.add_argument("--dense-mode", default="upsample", choices=["upsample", "direct"])
     g.add_argument("--upsampler", default="convex", choices=["convex", "bilinear"])
     g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])
+    g.add_argument("--flow-skip-stride", type=int, default=4,
+                   help="flows this many frames apart re-place the points chained one frame at a time (0: off)")
 
 
 def _track_config(a):
@@ -154,7 +156,8 @@ def _track_config(a):
         tracker="file" if a.tracks else a.tracker, cotracker=a.cotracker, tracks_file=a.tracks,
         grid_stride=a.grid_stride,
         query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
-        min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset)
+        min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset,
+        flow_skip_stride=a.flow_skip_stride)
 
 
 def cmd_track2d(a) -> int:
