@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from trackingworld.geometry import nearest_pixel
+
 STATIC, DYNAMIC, AMBIGUOUS = 0, 1, 2
 
 
@@ -40,16 +42,13 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     n_dyn = np.zeros(N, np.int64)
     for t in range(T):
         v = np.flatnonzero(vis_t[t])
-        x = np.clip(np.round(per_frame[t, v, 0]).astype(np.int64), 0, W - 1)
-        y = np.clip(np.round(per_frame[t, v, 1]).astype(np.int64), 0, H - 1)
+        x, y = nearest_pixel(per_frame[t, v], W, H)
         flat = y * W + x
         n_sta[v] += sta[t].ravel()[flat]
         n_dyn[v] += dyn[t].ravel()[flat]
     nvis = np.maximum(visible.sum(1), 1)
     q = query_frame.astype(np.int64)
-    qxy = tracks[np.arange(N), q]
-    qx = np.clip(np.round(qxy[:, 0]).astype(np.int64), 0, W - 1)
-    qy = np.clip(np.round(qxy[:, 1]).astype(np.int64), 0, H - 1)
+    qx, qy = nearest_pixel(tracks[np.arange(N), q], W, H)
     q_static = sta[q, qy, qx]
     labels = np.full(N, AMBIGUOUS, np.int8)
     labels[q_static & (n_sta * 2 >= nvis)] = STATIC
