@@ -1,4 +1,5 @@
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -25,6 +26,18 @@ def test_run_and_eval_end_to_end(tiny_scene, tmp_path, capsys):
     # the baseline returns the raw prior as its video depth: identical numbers on the same pixels
     assert m["video_depth"]["abs_rel_depth"] == pytest.approx(m["video_depth_prior"]["abs_rel_depth"])
     assert "ATE" in capsys.readouterr().out
+    # a ground truth without query tracks (a clip cut from a longer video): the other metrics still come out
+    g = dict(np.load(tiny_scene / "gt.npz"))
+    for k in ("tracks_xyz", "tracks_uv", "tracks_vis", "query_frame", "query_uv", "tracks_dynamic",
+              "tracks_bg_mover"):
+        g[k] = g[k][:0]
+    empty = tmp_path / "gt_empty"
+    shutil.copytree(tiny_scene, empty)
+    np.savez(empty / "gt.npz", **g)
+    assert main(["eval", str(out), "--gt", str(empty)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["tracks_2d"]["queries_matched"] is None and m["world_3d"]["all"]["n_points"] == 0
+    assert m["camera"]["ate"] > 0 and "abs_rel_depth" in m["track_depth"]
 
 
 def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):

@@ -85,7 +85,7 @@ def evaluate(result_dir: str | Path, scene_dir: str | Path) -> dict:
                       gt["query_uv"])
     qf = gt["query_frame"]
     out["tracks_2d"] = tapvid_2d(m.uv, m.visible, gt["tracks_uv"], gt["tracks_vis"], qf, (W, H))
-    out["tracks_2d"]["queries_matched"] = 100 * float(m.found.mean())
+    out["tracks_2d"]["queries_matched"] = 100 * float(m.found.mean()) if m.found.size else None
     out["tapvid3d"] = tapvid_3d(_to_cam(res.poses_c2w, m.xyz), m.visible, _to_cam(gt["poses_c2w"], gt["tracks_xyz"]),
                                 gt["tracks_vis"], qf, gt["K"], (W, H))
     aligned = apply_sim3(al, m.xyz)
