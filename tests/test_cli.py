@@ -68,6 +68,17 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     assert not (tmp_path / "o" / "result.npz").exists()
 
 
+def test_offset_stat_takes_any_percentile(capsys):
+    from trackingworld.cli.main import _optim_config, build_parser
+
+    a = build_parser().parse_args(["run", "x", "--out", "o", "--offset-stat", "p50", "--epsilon", "0.05"])
+    cfg = _optim_config(a)
+    assert (cfg.offset_stat, cfg.epsilon) == ("p50", 0.05)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "x", "--out", "o", "--offset-stat", "p200"])
+    assert "not max or a percentile" in capsys.readouterr().err
+
+
 def test_video_input(tiny_scene, tmp_path):
     import imageio.v3 as iio
 

@@ -60,7 +60,7 @@ class OptimConfig:
     dc_space: str = "log"  # stage-2 depth residual: log(z / D) (default) | metres (the paper as written)
     lambda_asap: float = 5.0
     epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object
-    offset_stat: str = "max"  # max (paper) | p90: statistic of ||O(i,t)|| over the visible frames
+    offset_stat: str = "max"  # max (paper) | pNN, a percentile: statistic of ||O(i,t)|| over the visible frames
     # focal length refined in stage 2 (stage2.refine_focal): auto = when the intrinsics were not given | on | off
     refine_focal: str = "auto"
     # stage 3: dynamic objects

@@ -26,6 +26,13 @@ def _xyz(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(f"expected X,Y,Z, got {text!r}") from e
 
 
+def _offset_stat(text: str) -> str:
+    """``max`` or a percentile ``pNN`` (p0-p100) of a track's offset norms."""
+    if text == "max" or (text[:1] == "p" and text[1:].isdigit() and int(text[1:]) <= 100):
+        return text
+    raise argparse.ArgumentTypeError(f"{text!r} is not max or a percentile p0-p100 (such as p50)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="trackingworld", description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -198,7 +205,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clip-len", type=int, default=d.clip_len)
     g.add_argument("--inlier-px", type=float, default=d.inlier_px, help="stage-1 inlier threshold tau (px)")
     g.add_argument("--epsilon", type=float, default=d.epsilon, help="offset (m) that marks a moving background")
-    g.add_argument("--offset-stat", default=d.offset_stat, choices=["max", "p90"])
+    g.add_argument("--offset-stat", type=_offset_stat, default=d.offset_stat,
+                   help="statistic of a track's offset norms compared with epsilon: max (the paper) or pNN, a "
+                        "percentile (p50 with --epsilon 0.05: fewer drifting static tracks called moving)")
     g.add_argument("--refine-focal", default=d.refine_focal, choices=["auto", "on", "off"],
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
     g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
