@@ -5,6 +5,15 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 
+def offset_percentile(stat: str) -> int | None:
+    """The percentile of an offset statistic ``pNN`` (0-100), None for ``max``; ValueError for anything else."""
+    if stat == "max":
+        return None
+    if stat[:1] == "p" and stat[1:].isdigit() and int(stat[1:]) <= 100:
+        return int(stat[1:])
+    raise ValueError(f"{stat!r} is not max or a percentile p0-p100 (such as p50)")
+
+
 @dataclass
 class InputConfig:
     input: str = ""

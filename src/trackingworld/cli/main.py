@@ -28,9 +28,13 @@ def _xyz(text: str) -> tuple[float, float, float]:
 
 def _offset_stat(text: str) -> str:
     """``max`` or a percentile ``pNN`` (p0-p100) of a track's offset norms."""
-    if text == "max" or (text[:1] == "p" and text[1:].isdigit() and int(text[1:]) <= 100):
-        return text
-    raise argparse.ArgumentTypeError(f"{text!r} is not max or a percentile p0-p100 (such as p50)")
+    from trackingworld.config import offset_percentile
+
+    try:
+        offset_percentile(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+    return text
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from trackingworld.config import OptimConfig
+from trackingworld.config import OptimConfig, offset_percentile
 from trackingworld.optim import lie
 from trackingworld.optim.linalg import pcg
 
@@ -479,13 +479,12 @@ def init_points(R, t, p: BAProblem) -> torch.Tensor:
 def track_offset_stat(norms: torch.Tensor, p: BAProblem, stat: str = "max") -> np.ndarray:
     """Per-point statistic [N] of ||O(i,t)|| over the visible frames: max (paper) or a percentile pNN."""
     norms = norms.detach()
-    if stat == "max":
+    pct = offset_percentile(stat)
+    if pct is None:
         out = torch.zeros(p.n_points, dtype=norms.dtype, device=norms.device)
         out.scatter_reduce_(0, p.pt, norms, reduce="amax", include_self=True)
         return out.cpu().numpy()
-    if not (stat.startswith("p") and stat[1:].isdigit() and 0 <= int(stat[1:]) <= 100):
-        raise ValueError(f"unknown offset statistic {stat!r} (max, or a percentile such as p50)")
-    frac = int(stat[1:]) / 100
+    frac = pct / 100
     pt = p.pt.cpu().numpy()
     v = norms.cpu().numpy()
     order = np.lexsort((v, pt))
