@@ -219,7 +219,17 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
-    g.add_argument("--dc-target", default=d.dc_target, choices=["aligned", "prior"])
+    g.add_argument("--dc-target", default=d.dc_target, choices=["prior", "frame", "local"],
+                   help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
+                        "z / prior median (default), or that ratio propagated from the nearest static tracks")
+    g.add_argument("--carry-k", type=int, default=d.carry_k,
+                   help="hidden frames of dynamic tracks follow this many neighbours' motion (0: held)")
+    g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
+                   help="a track in the dynamic mask is static only if its static fit's largest reprojection "
+                        "residual is at most this many px (0: the offset test alone)")
+    g.add_argument("--static-rebuild", default=d.static_rebuild, choices=["fit", "idw"],
+                   help="static tracks not optimised: triangulated with the poses held (fit) or rebuilt on "
+                        "their query ray at the IDW-propagated depth (idw, the paper's appendix)")
     g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,
                    help="optimise one static track per cell of this many px (0: all)")
     g.add_argument("--cell-cap", type=int, default=d.cell_cap,
@@ -235,6 +245,7 @@ def _optim_config(a):
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
+        carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,
         refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 

@@ -22,9 +22,9 @@ from trackingworld.optim.densify import (
     cell_representatives,
     propagate_ratio,
     ratio_maps,
-    thin_references,
     thinned_observations,
 )
+from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
@@ -61,14 +61,26 @@ def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
     return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
 
 
-def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[np.ndarray, np.ndarray]:
+def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The as-static-as-possible test of tracks (uv [n,T,2] px, prior D [n,T], vis [n,T]) with the poses (R, t
     world-to-camera) held: each track's best static point, and whether its offsets stay below epsilon.
-    Returns (still [n] bool, X [n,3] world)."""
+    Returns (still [n] bool, X [n,3] world, largest reprojection residual [n] px of X over the visible frames)."""
     pc = stage2.BAProblem.from_tracks(uv, D, vis, K, cfg, dtype, device)
     R, t = R.to(dtype), t.to(dtype)
     X = stage2.fit_points(R, t, pc)
-    return ~_moving(R, t, X, pc, cfg), X.cpu().numpy()
+    _, r_uv, _ = stage2.residuals(R, t, X, pc)
+    worst = torch.zeros(pc.n_points, dtype=r_uv.dtype, device=r_uv.device)
+    worst.scatter_reduce_(0, pc.pt, r_uv.norm(dim=-1), reduce="amax")
+    return ~_moving(R, t, X, pc, cfg), X.cpu().numpy(), worst.cpu().numpy()
+
+
+def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
+    """``[n,T]`` bool: of each track's visible frames ``vis [n,T]``, at most about ``m`` spread evenly over its
+    visible span (every ceil(count / m)-th one and the last)."""
+    rank = np.cumsum(vis, axis=1) - 1
+    count = vis.sum(1, keepdims=True)
+    step = np.maximum(-(-count // m), 1)
+    return vis & ((rank % step == 0) | (rank == count - 1))
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
@@ -173,7 +185,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
             # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
             # decision for all 72,464 tracks, points within 0.11 mm of float64's)
-            still, Xc = fits_static(uv[cand], D[cand], vis[cand], K, R, t, cfg, torch.float32, device)
+            still, Xc, worst = fits_static(uv[cand], D[cand], vis[cand], K, R, t, cfg, torch.float32, device)
+            if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
+                still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
             fixed = cand[still]
             dynamic[fixed] = False
             dynamic[cand[~still]] = True
@@ -204,24 +218,17 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if len(refs):
                 mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who, q], D[who, q], K, cfg.idw_k)
                 dynamic[who[mv >= 0.5]] = True
+        fit = rest[vis[rest].sum(1) >= 2] if cfg.static_rebuild == "fit" else rest[:0]
+        if len(fit):  # triangulated with the poses held; the moving flags stay the optimised neighbours'
+            vf = spread_observations(vis[fit], cfg.static_fit_frames) if cfg.static_fit_frames else vis[fit]
+            _, Xf, _ = fits_static(uv[fit], D[fit], vf, K, R, t, cfg, torch.float32, device)
+            xyz[fit] = Xf[:, None]
+            info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
-        if cfg.dc_target == "aligned":
-            static_all = np.flatnonzero(~dynamic)
-            z_static = camera_depths(xyz[static_all], poses)
-            sratio = np.where(vis[static_all], z_static / np.maximum(D[static_all], 1e-6), np.nan)
-            target = D[dyn].copy()
-            for tt in range(T):
-                v = np.flatnonzero(vis[static_all, tt])
-                w = np.flatnonzero(vis[dyn, tt])
-                if len(v) and len(w):
-                    sub = v[thin_references(uv[static_all[v], tt], 4.0)]
-                    target[w, tt] *= propagate_ratio(uv[static_all[sub], tt], D[static_all[sub], tt],
-                                                     sratio[sub, tt], uv[dyn[w], tt], D[dyn[w], tt], K, 4)
-        else:
-            target = D[dyn]
+        target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K)
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
             cd = dyn[ctrl]
@@ -236,6 +243,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if follow.any():
                 moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
                 xyz[dyn] = hold_invisible(moved, vis[dyn])
+            if cfg.carry_k > 0:
+                xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k)
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
 
@@ -247,6 +256,33 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "info": info}
+
+
+def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarray:
+    """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
+    ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
+    tracks (``frame``), or times that ratio propagated by IDW from the nearest static tracks (``local``)."""
+    target = D[dyn].copy()
+    if mode == "prior":
+        return target
+    if mode not in ("frame", "local"):
+        raise ValueError(f"dc_target: {mode!r} is not prior, frame or local")
+    # references: one visible static observation per 4 px square of each frame (in frame order)
+    n, t = thinned_observations(uv[static], vis[static], 4.0)
+    n = static[n]
+    ratio = transform(invert_pose(poses)[t], xyz[n, t])[:, 2] / np.maximum(D[n, t], 1e-6)
+    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
+    for tt in range(vis.shape[1]):
+        ref = slice(bounds[tt], bounds[tt + 1])
+        w = np.flatnonzero(vis[dyn, tt])
+        if bounds[tt] == bounds[tt + 1] or not len(w):
+            continue
+        if mode == "frame":
+            target[w, tt] *= np.median(ratio[ref])
+        else:
+            target[w, tt] *= propagate_ratio(uv[n[ref], tt], D[n[ref], tt], ratio[ref], uv[dyn[w], tt],
+                                             D[dyn[w], tt], K, 4)
+    return target
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
@@ -304,6 +340,9 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     mode = cfg.optim.refine_focal
     if mode not in ("auto", "on", "off"):
         raise InputError(f"refine_focal: {mode!r} is not auto, on or off")
+    for name, allowed in (("static_rebuild", ("fit", "idw")), ("dc_target", ("prior", "frame", "local"))):
+        if getattr(cfg.optim, name) not in allowed:
+            raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(allowed)}")
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed, refine)
     if report is not None:

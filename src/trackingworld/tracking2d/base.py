@@ -44,6 +44,12 @@ class Tracker(Protocol):
 def hold_invisible(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Fill the frames where a track is not visible with its value at the nearest visible frame in time
     (ties go to the earlier frame). values [N,T,C], visible [N,T]; tracks never visible are left as is."""
+    return np.take_along_axis(values, nearest_visible_frame(visible)[..., None], axis=1)
+
+
+def nearest_visible_frame(visible: np.ndarray) -> np.ndarray:
+    """``[N,T]`` int32: for every (track, frame) the nearest frame in time where the track is visible (ties go
+    to the earlier frame; the frame itself where it is visible, or where the track is never visible)."""
     N, T = visible.shape
     vis = np.ascontiguousarray(visible.T)  # [T,N]: the scans below run along axis 0, vectorised over tracks
     idx = np.arange(T, dtype=np.int32)[:, None]
@@ -54,4 +60,4 @@ def hold_invisible(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     use_next = (prev < 0) | ((nxt < T) & (nxt - idx < idx - prev))
     src = np.where(use_next, nxt, prev)
     src = np.where((src < 0) | (src >= T), idx, src)
-    return np.take_along_axis(values, np.ascontiguousarray(src.T)[..., None], axis=1)
+    return np.ascontiguousarray(src.T)

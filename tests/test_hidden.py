@@ -1,0 +1,65 @@
+"""Dynamic tracks through the frames they are not visible: carried by their neighbours' motion."""
+
+import numpy as np
+
+from trackingworld.optim.hidden import carry_hidden
+from trackingworld.tracking2d.base import hold_invisible, nearest_visible_frame
+
+
+def _moving_cloud(N=60, T=12, seed=0):
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(N, 3)) * 0.2 + np.array([0.0, 0.0, 4.0])
+    vel = np.array([0.05, -0.02, 0.01])
+    xyz = base[:, None] + vel * np.arange(T)[None, :, None]  # [N,T,3] a translating rigid object
+    return xyz, rng
+
+
+def test_nearest_visible_frame_prefers_earlier_on_ties():
+    vis = np.array([[False, True, False, False, False, True]])
+    assert nearest_visible_frame(vis).tolist() == [[1, 1, 1, 1, 5, 5]]
+    assert nearest_visible_frame(np.zeros((1, 3), bool)).tolist() == [[0, 1, 2]]
+
+
+def test_translation_is_carried_exactly_where_held_positions_lag():
+    xyz, rng = _moving_cloud()
+    N, T = xyz.shape[:2]
+    vis = np.ones((N, T), bool)
+    hidden = rng.random((N, T)) < 0.3
+    hidden[:, 0] = False  # every track keeps a visible frame
+    vis &= ~hidden
+    given = np.where(vis[..., None], xyz, 1e3)  # hidden frames hold garbage: they must not be read
+    out = carry_hidden(given, vis, k=8)
+    err = np.linalg.norm(out - xyz, axis=-1)
+    held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)
+    assert np.all(err[vis] == 0)
+    assert err[~vis].max() < 1e-9
+    assert held[~vis].mean() > 0.02  # the old behaviour is visibly wrong on the same input
+
+
+def test_rotation_is_carried_to_first_order():
+    rng = np.random.default_rng(1)
+    N, T = 80, 10
+    base = rng.normal(size=(N, 3)) * 0.1
+    ang = np.deg2rad(2.0) * np.arange(T)
+    c, s = np.cos(ang), np.sin(ang)
+    Rz = np.zeros((T, 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1
+    xyz = np.einsum("tij,nj->nti", Rz, base) + np.array([0.0, 0.0, 3.0])
+    vis = np.ones((N, T), bool)
+    vis[:20, 5:] = False
+    out = carry_hidden(xyz, vis, k=8)
+    err = np.linalg.norm(out - xyz, axis=-1)[~vis]
+    held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)[~vis]
+    assert err.mean() < 0.5 * held.mean()  # a neighbour's displacement differs by omega x (its offset)
+
+
+def test_without_a_neighbour_visible_the_position_is_held():
+    xyz, _ = _moving_cloud(N=3, T=5)
+    vis = np.zeros((3, 5), bool)
+    vis[0, :2] = True  # track 0 seen in frames 0-1 only
+    vis[1, :2] = True  # its only neighbours are seen in the same frames
+    vis[2, :2] = True
+    out = carry_hidden(xyz, vis, k=2)
+    assert np.allclose(out[0, 2:], xyz[0, 1])
+    never = carry_hidden(xyz, np.zeros((3, 5), bool))
+    assert np.array_equal(never, xyz)
