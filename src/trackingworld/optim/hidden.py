@@ -23,15 +23,19 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 16, chunk: int = 1 <
     frame carried by the neighbours' motion (module docstring). Tracks never visible are returned as given.
     Returns a new ``[N,T,3]`` array."""
     N, T = vis.shape
-    out = xyz.copy()
     src = nearest_visible_frame(vis)
-    hi, ht = np.nonzero(~vis & vis.any(1, keepdims=True))  # hidden observations
+    out = np.take_along_axis(xyz, src[..., None], axis=1)  # held at the nearest visible frame, carried below
+    hi, ht = np.nonzero(~vis & vis.any(1, keepdims=True))  # hidden observations, track-major, frames ascending
     if len(hi) == 0:
         return out
     hs = src[hi, ht]
-    out[hi, ht] = xyz[hi, hs]  # held, unless carried below
-    # one neighbour pool per (track, anchor frame): the k nearest tracks visible at the anchor
-    pair, inv = np.unique(hi * T + hs, return_inverse=True)
+    # one neighbour pool per (track, anchor frame); the anchor never decreases along a track's frames, so the
+    # keys come sorted and their runs are the pairs
+    key = hi * T + hs
+    new = np.r_[True, key[1:] != key[:-1]]
+    inv = np.cumsum(new) - 1
+    pair = key[new]
+    # each pool: the k nearest tracks visible at the anchor
     pi, ps = pair // T, pair % T
     pool = np.full((len(pair), k), -1, np.int64)
     dist = np.zeros((len(pair), k))
@@ -48,14 +52,15 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 16, chunk: int = 1 <
         pool[who, : kk - 1] = j[:, 1:]
         dist[who, : kk - 1] = d[:, 1:]
     wpool = np.where(pool >= 0, 1.0 / (dist + 0.01), 0.0)
-    pool = np.maximum(pool, 0)  # a missing neighbour has weight 0
+    pool = np.maximum(pool, 0) * T  # flat index of (neighbour, frame 0); a missing neighbour has weight 0
     flat = xyz.reshape(N * T, 3)
     visf = vis.reshape(N * T)
     for a in range(0, len(hi), chunk):
         b = slice(a, a + chunk)
         p = inv[b]
-        jt = pool[p] * T + ht[b][:, None]  # [c,k] flat index of (neighbour, t)
-        js = pool[p] * T + hs[b][:, None]  # ... and of (neighbour, s)
+        base = pool[p]
+        jt = base + ht[b][:, None]  # [c,k] flat index of (neighbour, t)
+        js = base + hs[b][:, None]  # ... and of (neighbour, s)
         w = wpool[p] * visf[jt]
         wsum = w.sum(1)
         moved = wsum > 0
