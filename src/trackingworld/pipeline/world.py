@@ -249,13 +249,23 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["stage3_observations"] = int(obs.sum())
 
     with tm("video_depth"):
-        # references: one visible observation per 4 px square of each frame, z of its world point / prior
-        n, t = thinned_observations(uv, vis, 4.0)
-        z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
-        ratio = z / np.maximum(D[n, t], 1e-6)
+        n, t, ratio = reference_ratios(None, uv, vis, xyz, D, poses)
         depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "info": info}
+
+
+def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
+    """The references of the appendix's scale propagation among ``tracks`` [n] (indices; None: all, without
+    copying the arrays): one visible observation per ``cell`` px square of each frame, in frame order. Returns
+    (track [R], frame [R], ratio [R] = camera z of its world point / prior depth)."""
+    if tracks is None:
+        n, t = thinned_observations(uv, vis, cell)
+    else:
+        n, t = thinned_observations(uv[tracks], vis[tracks], cell)
+        n = tracks[n]
+    z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
+    return n, t, z / np.maximum(D[n, t], 1e-6)
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarray:
@@ -267,10 +277,7 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarr
         return target
     if mode not in ("frame", "local"):
         raise ValueError(f"dc_target: {mode!r} is not prior, frame or local")
-    # references: one visible static observation per 4 px square of each frame (in frame order)
-    n, t = thinned_observations(uv[static], vis[static], 4.0)
-    n = static[n]
-    ratio = transform(invert_pose(poses)[t], xyz[n, t])[:, 2] / np.maximum(D[n, t], 1e-6)
+    n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
     for tt in range(vis.shape[1]):
         ref = slice(bounds[tt], bounds[tt + 1])
