@@ -48,6 +48,7 @@ def timed(timings: dict, name: str, verbose: bool):
         print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
+FIT_CHUNK = 1 << 17  # static tracks per as-static fit of the rebuild (bounds its memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
 FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
@@ -220,9 +221,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                 dynamic[who[mv >= 0.5]] = True
         fit = rest[vis[rest].sum(1) >= 2] if cfg.static_rebuild == "fit" else rest[:0]
         if len(fit):  # triangulated with the poses held; the moving flags stay the optimised neighbours'
-            vf = spread_observations(vis[fit], cfg.static_fit_frames) if cfg.static_fit_frames else vis[fit]
-            _, Xf, _ = fits_static(uv[fit], D[fit], vf, K, R, t, cfg, torch.float32, device)
-            xyz[fit] = Xf[:, None]
+            for a in range(0, len(fit), FIT_CHUNK):  # in chunks: the Gauss-Newton blocks are per observation
+                c = fit[a:a + FIT_CHUNK]
+                vf = spread_observations(vis[c], cfg.static_fit_frames) if cfg.static_fit_frames else vis[c]
+                _, Xf, _ = fits_static(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device)
+                xyz[c] = Xf[:, None]
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
