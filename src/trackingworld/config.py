@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+DC_TARGETS = ("frame", "prior", "local")  # OptimConfig.dc_target
+STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
+
 
 def offset_percentile(stat: str) -> int | None:
     """The percentile of an offset statistic ``pNN`` (0-100), None for ``max``; ValueError for anything else."""

@@ -200,7 +200,7 @@ ABLATIONS = {
 
 
 def _optim_args(p: argparse.ArgumentParser) -> None:
-    from trackingworld.config import OptimConfig
+    from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, OptimConfig
 
     d = OptimConfig()
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
@@ -219,7 +219,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
-    g.add_argument("--dc-target", default=d.dc_target, choices=["prior", "frame", "local"],
+    g.add_argument("--dc-target", default=d.dc_target, choices=DC_TARGETS,
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
                         "z / prior median (default), or that ratio propagated from the nearest static tracks")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
@@ -227,7 +227,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
-    g.add_argument("--static-rebuild", default=d.static_rebuild, choices=["fit", "idw"],
+    g.add_argument("--static-rebuild", default=d.static_rebuild, choices=STATIC_REBUILDS,
                    help="static tracks not optimised: triangulated with the poses held (fit) or rebuilt on "
                         "their query ray at the IDW-propagated depth (idw, the paper's appendix)")
     g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import torch
 
-from trackingworld.config import OptimConfig, RunConfig
+from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, OptimConfig, RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length, invert_pose, transform, unproject
 from trackingworld.io.result import Result
@@ -62,13 +62,19 @@ def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
     return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
 
 
+def _static_points(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device):
+    """Each track's best static point with the poses held (stage 2's objective, offsets eliminated). Returns the
+    problem, the poses in ``dtype`` and X [n,3] world (a tensor)."""
+    pc = stage2.BAProblem.from_tracks(uv, D, vis, K, cfg, dtype, device)
+    R, t = R.to(dtype), t.to(dtype)
+    return pc, R, t, stage2.fit_points(R, t, pc)
+
+
 def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The as-static-as-possible test of tracks (uv [n,T,2] px, prior D [n,T], vis [n,T]) with the poses (R, t
     world-to-camera) held: each track's best static point, and whether its offsets stay below epsilon.
     Returns (still [n] bool, X [n,3] world, largest reprojection residual [n] px of X over the visible frames)."""
-    pc = stage2.BAProblem.from_tracks(uv, D, vis, K, cfg, dtype, device)
-    R, t = R.to(dtype), t.to(dtype)
-    X = stage2.fit_points(R, t, pc)
+    pc, R, t, X = _static_points(uv, D, vis, K, R, t, cfg, dtype, device)
     _, r_uv, _ = stage2.residuals(R, t, X, pc)
     worst = torch.zeros(pc.n_points, dtype=r_uv.dtype, device=r_uv.device)
     worst.scatter_reduce_(0, pc.pt, r_uv.norm(dim=-1), reduce="amax")
@@ -224,8 +230,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             for a in range(0, len(fit), FIT_CHUNK):  # in chunks: the Gauss-Newton blocks are per observation
                 c = fit[a:a + FIT_CHUNK]
                 vf = spread_observations(vis[c], cfg.static_fit_frames) if cfg.static_fit_frames else vis[c]
-                _, Xf, _ = fits_static(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device)
-                xyz[c] = Xf[:, None]
+                xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device)[3].cpu().numpy()[:, None]
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
@@ -278,8 +283,8 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarr
     target = D[dyn].copy()
     if mode == "prior":
         return target
-    if mode not in ("frame", "local"):
-        raise ValueError(f"dc_target: {mode!r} is not prior, frame or local")
+    if mode not in DC_TARGETS:
+        raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
     n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
     for tt in range(vis.shape[1]):
@@ -350,7 +355,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     mode = cfg.optim.refine_focal
     if mode not in ("auto", "on", "off"):
         raise InputError(f"refine_focal: {mode!r} is not auto, on or off")
-    for name, allowed in (("static_rebuild", ("fit", "idw")), ("dc_target", ("prior", "frame", "local"))):
+    for name, allowed in (("static_rebuild", STATIC_REBUILDS), ("dc_target", DC_TARGETS)):
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(allowed)}")
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
