@@ -30,6 +30,7 @@ from trackingworld.tracking2d import FlowTracker
 
 CONFIGS = {
     "grid+convex (default)": {},
+    "grid+convex mean (paper)": {"upsampler": "convex-mean"},
     "grid+bilinear": {"upsampler": "bilinear"},
     "direct every pixel": {"dense_mode": "direct"},
     "grid+convex, r=0 (rounding)": {"cover_radius": 0.0},

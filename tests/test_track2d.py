@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -11,8 +12,6 @@ from trackingworld.tracking2d.upsample import UpsampleConfig, apply_weights, nei
 
 def textured_shift_video(T=6, H=64, W=80, dx=1.5, seed=0):
     """A smooth random texture translating right by dx px per frame."""
-    import cv2
-
     rng = np.random.default_rng(seed)
     big = cv2.GaussianBlur(rng.random((H, W + int(dx * T) + 8, 3)).astype(np.float32), (0, 0), 1.5)
     big = (255 * (big - big.min()) / (big.max() - big.min())).astype(np.uint8)
@@ -39,6 +38,30 @@ def test_upsampler_reproduces_common_motion(mode):
     tr, vis = apply_weights(pix, idx, w, grid_tracks, np.ones((gh * gw, T), bool), 0)
     np.testing.assert_allclose(tr, pix[:, None] + disp[None], atol=1e-4)
     np.testing.assert_allclose(vis, 1, atol=1e-5)
+
+
+def test_first_order_upsampler_reproduces_zoom():
+    # the camera moves forward: displacements grow linearly from the image centre (an affine field). Colour
+    # weights put a pixel's weighted centroid off the pixel, so the weighted mean is off by the field's
+    # gradient times that offset; the weighted affine fit is exact but where the weight sits on one node
+    H, W, s, T = 32, 40, 4, 3
+    g = grid_queries(0, H, W, s)
+    gh, gw = len(np.arange(1.5, H, s)), len(np.arange(1.5, W, s))
+    c = np.array([W / 2, H / 2])
+    zoom = np.array([1.0, 1.08, 1.16])
+    grid_tracks = c + (g[:, None, 1:] - c) * zoom[None, :, None]
+    img = cv2.GaussianBlur(np.random.default_rng(1).random((H, W, 3)), (0, 0), 3)  # a smooth texture
+    img = (img - img.min()) / (img.max() - img.min())
+    ys, xs = np.mgrid[0:H, 0:W]
+    pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+    idx, w = neighbour_weights(pix, (gh, gw), s, img, None, np.ones((gh, gw), bool), UpsampleConfig())
+    want = c + (pix[:, None] - c) * zoom[None, :, None]
+    vis = np.ones((gh * gw, T), bool)
+    err = {r: np.median(np.abs(apply_weights(pix, idx, w, grid_tracks, vis, 0, affine_ridge=r)[0] - want)[:, -1])
+           for r in (-1.0, 0.0, UpsampleConfig().affine_ridge)}
+    assert err[-1.0] > 0.1  # the weighted mean: a tenth of a pixel and more for half the pixels
+    assert err[0.0] < 0.01 * err[-1.0]
+    assert err[UpsampleConfig().affine_ridge] < 0.1 * err[-1.0]
 
 
 def test_convex_weights_follow_colour_edges():

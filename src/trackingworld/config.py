@@ -49,7 +49,9 @@ class Track2DConfig:
     cover_radius: float = 1.0  # r: covered when a visible track lies within r px (0: rounding, as the authors)
     min_component: int = 50  # tau
     dense_mode: str = "upsample"  # upsample (grid + convex upsampler) | direct (every pixel tracked)
-    upsampler: str = "convex"  # convex | bilinear
+    # convex: the weighted local affine fit of the grid neighbours' displacements at the pixel (first-order
+    # correct; tracking2d.upsample) | convex-mean: their weighted mean (the paper's convex upsampler) | bilinear
+    upsampler: str = "convex"
     flow_preset: str = "fine"
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
 

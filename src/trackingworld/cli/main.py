@@ -154,7 +154,9 @@ def _track_args(p) -> None:
     g.add_argument("--cover-radius", type=float, default=1.0, help="r: px within which a pixel is covered")
     g.add_argument("--min-component", type=int, default=50, help="tau: smallest new component (px)")
     g.add_argument("--dense-mode", default="upsample", choices=["upsample", "direct"])
-    g.add_argument("--upsampler", default="convex", choices=["convex", "bilinear"])
+    g.add_argument("--upsampler", default="convex", choices=["convex", "convex-mean", "bilinear"],
+                   help="convex: weighted affine fit of the grid neighbours at each pixel; convex-mean: their "
+                        "weighted mean (the paper)")
     g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])
     g.add_argument("--flow-skip-stride", type=int, default=4,
                    help="flows this many frames apart re-place the points chained one frame at a time (0: off)")

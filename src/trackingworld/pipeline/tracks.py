@@ -24,6 +24,15 @@ def make_tracker(cfg: Track2DConfig, verbose: bool = True, device: str = "cpu"):
     raise InputError(f"unknown tracker {cfg.tracker!r} (available: flow, cotracker3, file)")
 
 
+def upsample_config(name: str) -> UpsampleConfig:
+    """The upsampler named on the command line: convex | convex-mean | bilinear."""
+    if name == "convex-mean":
+        return UpsampleConfig(mode="convex", affine_ridge=-1.0)
+    if name not in ("convex", "bilinear"):
+        raise ValueError(f"unknown upsampler {name!r} (choose from convex, convex-mean, bilinear)")
+    return UpsampleConfig(mode=name)
+
+
 def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = None, device: str = "cpu",
                 verbose: bool = True) -> TrackResult:
     """Dense tracks ``[N,T,2]`` of the video ``frames [T,H,W,3]`` at the processing resolution."""
@@ -36,7 +45,7 @@ def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = N
         dense = DenseTracker(make_tracker(cfg, verbose, device), DenseConfig(
             stride=cfg.grid_stride, query_stride=cfg.query_stride, first_frame_only=cfg.first_frame_only,
             cover_radius=cfg.cover_radius, min_component=cfg.min_component, mode=cfg.dense_mode,
-            upsample=UpsampleConfig(mode=cfg.upsampler), device=device, verbose=verbose))
+            upsample=upsample_config(cfg.upsampler), device=device, verbose=verbose))
         res = dense.track_all(frames)
     if timings is not None:
         timings["track2d"] = time.perf_counter() - t0

@@ -128,7 +128,8 @@ class DenseTracker:
         grid_vis[gy * gw + gx] = r.visible
         image = cv2.GaussianBlur(frames[t].astype(np.float32) / 255.0, (0, 0), 1.0)
         idx, w = neighbour_weights(pix, (gh, gw), s, image, self._motion_features(frames, t), need, cfg.upsample)
-        return apply_weights(pix, idx, w, grid_tracks, grid_vis, t, cfg.device)
+        return apply_weights(pix, idx, w, grid_tracks, grid_vis, t, cfg.device,
+                             affine_ridge=cfg.upsample.affine_ridge)
 
     def track_all(self, frames: np.ndarray) -> TrackResult:
         """Dense tracks of almost all pixels of all frames."""
