@@ -32,11 +32,11 @@ def scratch_dir(prefix: str, keep: bool = False) -> Path:
     return path
 
 
-def tracks_file(scene: Path, path: Path, first_frame_only: bool = False) -> Path:
+def tracks_file(scene: Path, path: Path, **track2d) -> Path:
     """Dense tracks of a rendered scene's frames written in the CoTracker layout, for ``--tracks`` (every row
-    shares them)."""
+    shares them); ``track2d``: Track2DConfig fields other than the defaults."""
     frames, _ = read_frames(str(scene / "input" / "frames"))
-    tr = track_video(frames, Track2DConfig(first_frame_only=first_frame_only), verbose=False)
+    tr = track_video(frames, Track2DConfig(**track2d), verbose=False)
     write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
     return path
 

@@ -26,24 +26,29 @@ from trackingworld.synth import render_and_write
 # the settings of the paper / the authors' code where this package departs from them (README)
 PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask_dynamic_px": 0.0}
 
+# dense 2D tracks the rows run on (Track2DConfig fields)
+TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"}}
+
 ROWS = {
-    "full (lm solver, default)": ("trackingworld", {}, False),
-    "full (adam, paper schedule)": ("trackingworld", {"solver": "adam"}, False),
-    "w/o T.E.F": ("trackingworld", {}, True),
-    "w/o pose-init": ("trackingworld", {"no_pose_init": True}, False),
-    "w/o D.O.T": ("trackingworld", {"no_dynamic_opt": True}, False),
-    "w/o N_inliers": ("trackingworld", {"no_inliers": True}, False),
-    "w/o O_static": ("trackingworld", {"no_offsets": True}, False),
-    "w/o L_dc": ("trackingworld", {"no_depth_consistency": True}, False),
-    "dc on metres (paper as written)": ("trackingworld", {"dc_space": "metres"}, False),
-    "every static track optimised (no speed-up)": ("trackingworld", {"downsample_cell": 0}, False),
-    "static tracks rebuilt by IDW (appendix)": ("trackingworld", {"static_rebuild": "idw"}, False),
-    "stage-3 target = raw prior (paper)": ("trackingworld", {"dc_target": "prior"}, False),
-    "stage-3 target = local ratio": ("trackingworld", {"dc_target": "local"}, False),
-    "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, False),
-    "mask-dynamic test by offsets alone": ("trackingworld", {"mask_dynamic_px": 0.0}, False),
-    "all four as the paper (before this change)": ("trackingworld", PAPER_LIKE, False),
-    "baseline (camera-centric)": ("baseline", {}, False),
+    "full (lm solver, default)": ("trackingworld", {}, ""),
+    "full (adam, paper schedule)": ("trackingworld", {"solver": "adam"}, ""),
+    "w/o T.E.F": ("trackingworld", {}, "first"),
+    "w/o pose-init": ("trackingworld", {"no_pose_init": True}, ""),
+    "w/o D.O.T": ("trackingworld", {"no_dynamic_opt": True}, ""),
+    "w/o N_inliers": ("trackingworld", {"no_inliers": True}, ""),
+    "w/o O_static": ("trackingworld", {"no_offsets": True}, ""),
+    "w/o L_dc": ("trackingworld", {"no_depth_consistency": True}, ""),
+    "dc on metres (paper as written)": ("trackingworld", {"dc_space": "metres"}, ""),
+    "every static track optimised (no speed-up)": ("trackingworld", {"downsample_cell": 0}, ""),
+    "static tracks rebuilt by IDW (appendix)": ("trackingworld", {"static_rebuild": "idw"}, ""),
+    "stage-3 target = raw prior (paper)": ("trackingworld", {"dc_target": "prior"}, ""),
+    "stage-3 target = local ratio": ("trackingworld", {"dc_target": "local"}, ""),
+    "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, ""),
+    "mask-dynamic test by offsets alone": ("trackingworld", {"mask_dynamic_px": 0.0}, ""),
+    "all four as the paper": ("trackingworld", PAPER_LIKE, ""),
+    "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
+    "all four and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
+    "baseline (camera-centric)": ("baseline", {}, ""),
 }
 
 
@@ -61,12 +66,13 @@ def main(argv=None) -> int:
     scene = render_and_write(work / "scene", a.preset, a.seed)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
-    tracks = {ff: tracks_file(scene, work / ("tracks_first.npz" if ff else "tracks.npz"), ff) for ff in (False, True)}
+    # every row runs on the default tracks but those naming a variant (TRACKS)
+    tracks = {v: tracks_file(scene, work / f"tracks_{v or 'default'}.npz", **TRACKS[v]) for v in TRACKS}
     results = {}
-    for name, (method, opts, tef_off) in ROWS.items():
+    for name, (method, opts, variant) in ROWS.items():
         if a.quick and opts.get("solver") == "adam":
             continue
-        r = run_and_evaluate(_config(method, inp, tracks[tef_off], **opts), work / f"run{len(results)}", scene, name)
+        r = run_and_evaluate(_config(method, inp, tracks[variant], **opts), work / f"run{len(results)}", scene, name)
         results[name] = {**r, "optim_s": sum(r["timings"].get(k, 0.0) for k in OPT_STAGES)}
     write(results, a.preset + (" --quick" if a.quick else ""), frames.shape)
     return 0
@@ -81,10 +87,11 @@ def _config(method: str, inp, tracks, **opts) -> RunConfig:
 
 
 def over_seeds(work, preset: str, seeds: list[int]) -> int:
-    """The full method beside the baseline on one scene per seed (same tracks for both), with the means."""
+    """The full method beside the baseline on one scene per seed (same tracks for both), and the full method on
+    the tracks of the paper's upsampler (its weighted mean), with the means."""
     head = ("| seed | ATE [% path] | track depth AbsRel (prior) | x prior | video depth AbsRel (prior) | "
             "world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | optimisation [s] | "
-            "baseline: ATE / track AbsRel / world |")
+            "baseline: ATE / track AbsRel / world | upsampler's mean: track AbsRel / world all / dyn |")
     lines = md_table_start(f"# World-centric optimiser over seeds of the `{preset}` preset",
                            f"Command: `.venv/bin/python benchmarks/bench_optim.py --preset {preset} --seeds "
                            f"{' '.join(map(str, seeds))}`", head)
@@ -92,22 +99,27 @@ def over_seeds(work, preset: str, seeds: list[int]) -> int:
     for sd in seeds:
         scene = render_and_write(work / f"scene{sd}", preset, sd)
         inp = scene / "input"
-        tracks = tracks_file(scene, work / f"tracks{sd}.npz", False)
+        tracks = tracks_file(scene, work / f"tracks{sd}.npz")
+        mean_tracks = tracks_file(scene, work / f"tracks{sd}_mean.npz", **TRACKS["mean"])
         full = run_and_evaluate(_config("trackingworld", inp, tracks), work / f"full{sd}", scene, f"seed {sd} full")
         base = run_and_evaluate(_config("baseline", inp, tracks), work / f"base{sd}", scene, f"seed {sd} baseline")
-        m, b = full["metrics"], base["metrics"]
+        mean = run_and_evaluate(_config("trackingworld", inp, mean_tracks), work / f"mean{sd}", scene,
+                                f"seed {sd} upsampler's mean")
+        m, b, u = full["metrics"], base["metrics"], mean["metrics"]
         opt_s = sum(full["timings"].get(k, 0.0) for k in OPT_STAGES)
         v = [m["camera"]["ate_pct_path"], m["track_depth"]["abs_rel_depth"], m["track_depth_prior"]["abs_rel_depth"],
              m["video_depth"]["abs_rel_depth"], m["video_depth_prior"]["abs_rel_depth"],
              m["world_3d"]["all"]["acc_avg"], m["world_3d"]["dynamic"]["acc_avg"],
              m["labels"]["static_kept_static"], m["labels"]["bg_mover_recall"],
-             opt_s, b["camera"]["ate_pct_path"], b["track_depth"]["abs_rel_depth"], b["world_3d"]["all"]["acc_avg"]]
+             opt_s, b["camera"]["ate_pct_path"], b["track_depth"]["abs_rel_depth"], b["world_3d"]["all"]["acc_avg"],
+             u["track_depth"]["abs_rel_depth"], u["world_3d"]["all"]["acc_avg"], u["world_3d"]["dynamic"]["acc_avg"]]
         rows.append([np.nan if x is None else float(x) for x in v])
-        out[str(sd)] = {"full": {"metrics": m, "timings": full["timings"]}, "baseline": {"metrics": b}}
+        out[str(sd)] = {"full": {"metrics": m, "timings": full["timings"]}, "baseline": {"metrics": b},
+                        "upsampler_mean": {"metrics": u}}
     for sd, r in zip([*map(str, seeds), "mean"], [*rows, list(np.nanmean(np.array(rows), 0))], strict=True):
         lines.append(f"| {sd} | {r[0]:.2f} | {r[1]:.4f} ({r[2]:.4f}) | {r[1] / r[2]:.2f} | {r[3]:.4f} ({r[4]:.4f}) | "
                      f"{r[5]:.1f} / {r[6]:.1f} | {r[7]:.1f} | {r[8]:.1f} | {r[9]:.1f} | "
-                     f"{r[10]:.2f} / {r[11]:.4f} / {r[12]:.1f} |")
+                     f"{r[10]:.2f} / {r[11]:.4f} / {r[12]:.1f} | {r[13]:.4f} / {r[14]:.1f} / {r[15]:.1f} |")
     write_results(f"optim_{preset}_seeds", lines, out)
     return 0
 
