@@ -8,7 +8,7 @@ from trackingworld.eval.dense import coverage, flow_metrics, label_metrics, stat
 from trackingworld.eval.depth import abs_rel_delta1, depth_metrics, fit_scale_shift_depth
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import tapvid_2d, tapvid_3d, world_accuracy
-from trackingworld.eval.trajectory import apply_sim3, camera_metrics, sim3_from_trajectories
+from trackingworld.eval.trajectory import apply_sim3, camera_metrics, sim3_from_poses, sim3_from_trajectories
 from trackingworld.geometry import pose_from_rt
 
 
@@ -72,6 +72,30 @@ def test_sim3_maps_points():
     p_est = (np.linalg.inv(S)[:3, :3] @ p_gt.T).T + np.linalg.inv(S)[:3, 3]
     p_est = (S[:3, :3] @ p_gt.T).T + S[:3, 3]  # points move with the world like the cameras do
     np.testing.assert_allclose(apply_sim3(al, p_est), p_gt, atol=1e-6)
+
+
+def test_sim3_from_poses_exact_and_well_posed_on_a_straight_path(rng):
+    # exact: a scaled, rotated, moved copy of a trajectory is mapped back
+    gt = circle_traj()
+    S = pose_from_rt(Rotation.from_euler("xyz", [10, 40, -20], degrees=True).as_matrix(), np.array([1.0, -2, 3]))
+    est = S @ gt
+    est[:, :3, 3] *= 0.37
+    al = sim3_from_poses(est, gt)
+    assert al["mode"] == "sim3_poses" and al["s"] == pytest.approx(1 / 0.37, rel=1e-6)
+    np.testing.assert_allclose(apply_sim3(al, est), gt, atol=1e-6)
+    # a forward camera on a nearly straight path (2 cm of sideways wiggle over 4 m), centres off by 5 mm noise,
+    # orientations exact: the centres alone leave the tilt about the path loose, the poses fix it; a point
+    # 7 m to the side shows the difference
+    T = 40
+    z = np.linspace(0, 4, T)
+    pos = np.stack([0.02 * np.sin(z * 3), np.zeros(T), z], 1)
+    gt = pose_from_rt(np.tile(np.eye(3), (T, 1, 1)), pos)
+    est = gt.copy()
+    est[:, :3, 3] += 0.005 * rng.standard_normal((T, 3))
+    p = np.array([[7.0, 0.0, 2.0]])
+    err_c = np.linalg.norm(apply_sim3(sim3_from_trajectories(est, gt), p) - p)
+    err_p = np.linalg.norm(apply_sim3(sim3_from_poses(est, gt), p) - p)
+    assert err_p < 0.02 and err_c > 3 * err_p
 
 
 def test_depth_scale_shift_invariance(rng):
