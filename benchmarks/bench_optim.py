@@ -89,13 +89,7 @@ def _config(method: str, inp, tracks, **opts) -> RunConfig:
 def over_seeds(work, preset: str, seeds: list[int]) -> int:
     """The full method beside the baseline on one scene per seed (same tracks for both), and the full method on
     the tracks of the paper's upsampler (its weighted mean), with the means."""
-    head = ("| seed | ATE [% path] | track depth AbsRel (prior) | x prior | video depth AbsRel (prior) | "
-            "world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | optimisation [s] | "
-            "baseline: ATE / track AbsRel / world | upsampler's mean: track AbsRel / world all / dyn |")
-    lines = md_table_start(f"# World-centric optimiser over seeds of the `{preset}` preset",
-                           f"Command: `.venv/bin/python benchmarks/bench_optim.py --preset {preset} --seeds "
-                           f"{' '.join(map(str, seeds))}`", head)
-    rows, out = [], {}
+    out = {}
     for sd in seeds:
         scene = render_and_write(work / f"scene{sd}", preset, sd)
         inp = scene / "input"
@@ -105,29 +99,45 @@ def over_seeds(work, preset: str, seeds: list[int]) -> int:
         base = run_and_evaluate(_config("baseline", inp, tracks), work / f"base{sd}", scene, f"seed {sd} baseline")
         mean = run_and_evaluate(_config("trackingworld", inp, mean_tracks), work / f"mean{sd}", scene,
                                 f"seed {sd} upsampler's mean")
-        m, b, u = full["metrics"], base["metrics"], mean["metrics"]
-        opt_s = sum(full["timings"].get(k, 0.0) for k in OPT_STAGES)
+        out[str(sd)] = {"full": {"metrics": full["metrics"], "timings": full["timings"]},
+                        "baseline": {"metrics": base["metrics"]}, "upsampler_mean": {"metrics": mean["metrics"]}}
+    write_seeds(out, preset)
+    return 0
+
+
+def write_seeds(out: dict, preset: str) -> None:
+    """The table of :func:`over_seeds` from its per-seed metrics (``out``, also its json)."""
+    seeds = list(out)
+    head = ("| seed | ATE [% path] | track depth AbsRel (prior) | x prior | video depth AbsRel (prior) | "
+            "world 3D acc all / dyn (centres' Sim(3): all) | static kept [%] | bg-mover recall [%] | "
+            "optimisation [s] | baseline: ATE / track AbsRel / world | "
+            "upsampler's mean: track AbsRel / world all / dyn |")
+    lines = md_table_start(f"# World-centric optimiser over seeds of the `{preset}` preset",
+                           f"Command: `.venv/bin/python benchmarks/bench_optim.py --preset {preset} --seeds "
+                           f"{' '.join(seeds)}`", head)
+    rows = []
+    for sd in seeds:
+        m, b, u = out[sd]["full"]["metrics"], out[sd]["baseline"]["metrics"], out[sd]["upsampler_mean"]["metrics"]
+        opt_s = sum(out[sd]["full"]["timings"].get(k, 0.0) for k in OPT_STAGES)
         v = [m["camera"]["ate_pct_path"], m["track_depth"]["abs_rel_depth"], m["track_depth_prior"]["abs_rel_depth"],
              m["video_depth"]["abs_rel_depth"], m["video_depth_prior"]["abs_rel_depth"],
              m["world_3d"]["all"]["acc_avg"], m["world_3d"]["dynamic"]["acc_avg"],
              m["labels"]["static_kept_static"], m["labels"]["bg_mover_recall"],
              opt_s, b["camera"]["ate_pct_path"], b["track_depth"]["abs_rel_depth"], b["world_3d"]["all"]["acc_avg"],
-             u["track_depth"]["abs_rel_depth"], u["world_3d"]["all"]["acc_avg"], u["world_3d"]["dynamic"]["acc_avg"]]
+             u["track_depth"]["abs_rel_depth"], u["world_3d"]["all"]["acc_avg"], u["world_3d"]["dynamic"]["acc_avg"],
+             m.get("world_3d_centres", {"all": {}})["all"].get("acc_avg")]
         rows.append([np.nan if x is None else float(x) for x in v])
-        out[str(sd)] = {"full": {"metrics": m, "timings": full["timings"]}, "baseline": {"metrics": b},
-                        "upsampler_mean": {"metrics": u}}
-    for sd, r in zip([*map(str, seeds), "mean"], [*rows, list(np.nanmean(np.array(rows), 0))], strict=True):
+    for sd, r in zip([*seeds, "mean"], [*rows, list(np.nanmean(np.array(rows), 0))], strict=True):
         lines.append(f"| {sd} | {r[0]:.2f} | {r[1]:.4f} ({r[2]:.4f}) | {r[1] / r[2]:.2f} | {r[3]:.4f} ({r[4]:.4f}) | "
-                     f"{r[5]:.1f} / {r[6]:.1f} | {r[7]:.1f} | {r[8]:.1f} | {r[9]:.1f} | "
+                     f"{r[5]:.1f} / {r[6]:.1f} ({r[16]:.1f}) | {r[7]:.1f} | {r[8]:.1f} | {r[9]:.1f} | "
                      f"{r[10]:.2f} / {r[11]:.4f} / {r[12]:.1f} | {r[13]:.4f} / {r[14]:.1f} / {r[15]:.1f} |")
     write_results(f"optim_{preset}_seeds", lines, out)
-    return 0
 
 
 def write(results: dict, preset: str, shape) -> None:
     head = ("| configuration | ATE [% path] | RTE [m] | RRE [deg] | track depth AbsRel (prior) | "
-            "video depth AbsRel (prior) | world 3D acc all / dyn | static kept [%] | bg-mover recall [%] | "
-            "optimisation [s] |")
+            "video depth AbsRel (prior) | world 3D acc all / dyn | centres' Sim(3): all / dyn | static kept [%] | "
+            "bg-mover recall [%] | optimisation [s] |")
     scene = preset.split()[0]
     lines = md_table_start(
         f"# World-centric optimiser on the `{scene}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})",
@@ -135,11 +145,13 @@ def write(results: dict, preset: str, shape) -> None:
     for name, r in results.items():
         m = r["metrics"]
         c, td, vd, w, lab = m["camera"], m["track_depth"], m["video_depth"], m["world_3d"], m["labels"]
+        wc = m.get("world_3d_centres", {"all": {}, "dynamic": {}})
         lines.append(
             f"| {name} | {fmt(c['ate_pct_path'], 2)} | {fmt(c['rte'], 4)} | {fmt(c['rre'], 3)} | "
             f"{fmt(td['abs_rel_depth'], 4)} ({fmt(m['track_depth_prior']['abs_rel_depth'], 4)}) | "
             f"{fmt(vd['abs_rel_depth'], 4)} ({fmt(m['video_depth_prior']['abs_rel_depth'], 4)}) | "
             f"{fmt(w['all']['acc_avg'], 1)} / {fmt(w['dynamic']['acc_avg'], 1)} | "
+            f"{fmt(wc['all'].get('acc_avg'), 1)} / {fmt(wc['dynamic'].get('acc_avg'), 1)} | "
             f"{fmt(lab['static_kept_static'], 1)} | {fmt(lab['bg_mover_recall'], 1)} | {r['optim_s']:.1f} |")
     write_results(f"optim_{scene}", lines, {k: {"metrics": v["metrics"], "timings": v["timings"], "wall_s": v["wall_s"]}
                                           for k, v in results.items()})

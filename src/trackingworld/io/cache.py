@@ -18,7 +18,8 @@ import numpy as np
 
 from trackingworld.io.atomic import atomic_path
 
-CACHE_VERSION = 1
+# raised whenever a cached file would hold something else for the same key (2: the first-order upsampler)
+CACHE_VERSION = 2
 
 
 def file_identity(path: str | os.PathLike | None) -> dict | None:
