@@ -125,7 +125,7 @@ ROWS = [
     ("world 3D acc [%]", ("world_3d", "all", "acc_avg"), 1),
     ("  static", ("world_3d", "static", "acc_avg"), 1),
     ("  dynamic", ("world_3d", "dynamic", "acc_avg"), 1),
-    ("world 3D acc, centres' Sim(3) [%]", ("world_3d_centres", "all", "acc_avg"), 1),
+    ("world 3D acc, centres [%]", ("world_3d_centres", "all", "acc_avg"), 1),
     ("  static", ("world_3d_centres", "static", "acc_avg"), 1),
     ("  dynamic", ("world_3d_centres", "dynamic", "acc_avg"), 1),
     ("TAPVid-3D AJ", ("tapvid3d", "aj"), 1), ("TAPVid-3D APD", ("tapvid3d", "apd_3d"), 1),
@@ -157,14 +157,15 @@ def format_table(columns: dict[str, dict]) -> str:
     """Plain-text table, one column per named metrics dict."""
     names = list(columns)
     width = max(12, *(len(n) + 2 for n in names))
-    lines = ["metric".ljust(28) + "".join(n.rjust(width) for n in names)]
+    lw = max(len(label) for label, _, _ in ROWS) + 1
+    lines = ["metric".ljust(lw) + "".join(n.rjust(width) for n in names)]
     lines.append("-" * len(lines[0]))
     for label, path, nd in ROWS:
         vals = []
         for n in names:
             v = _get(columns[n], path)
             vals.append(("-" if v is None else f"{v:.{nd}f}").rjust(width))
-        lines.append(label.ljust(28) + "".join(vals))
+        lines.append(label.ljust(lw) + "".join(vals))
     return "\n".join(lines)
 
 
