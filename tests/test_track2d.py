@@ -329,3 +329,14 @@ def test_hold_invisible_takes_the_nearest_visible_frame_earlier_on_ties():
     assert out[2].tolist() == values[2, :, 0].tolist()
     tie = hold_invisible(values[:1], np.array([[1, 0, 1, 0, 0, 0]], bool))[0, :, 0]
     assert tie.tolist() == [0, 0, 2, 2, 2, 2]  # frame 1 is one frame from 0 and from 2: the earlier wins
+
+
+def test_upsampler_names():
+    from trackingworld.errors import InputError
+    from trackingworld.pipeline.tracks import upsample_config
+
+    assert upsample_config("convex").affine_ridge >= 0  # first-order correction on by default
+    assert upsample_config("convex-mean").affine_ridge < 0 and upsample_config("convex-mean").mode == "convex"
+    assert upsample_config("bilinear").mode == "bilinear"
+    with pytest.raises(InputError, match="unknown upsampler"):
+        upsample_config("nearest")

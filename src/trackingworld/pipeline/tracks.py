@@ -29,7 +29,7 @@ def upsample_config(name: str) -> UpsampleConfig:
     if name == "convex-mean":
         return UpsampleConfig(mode="convex", affine_ridge=-1.0)
     if name not in ("convex", "bilinear"):
-        raise ValueError(f"unknown upsampler {name!r} (choose from convex, convex-mean, bilinear)")
+        raise InputError(f"unknown upsampler {name!r} (choose from convex, convex-mean, bilinear)")
     return UpsampleConfig(mode=name)
 
 
