@@ -249,10 +249,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             follow = vis[dyn].copy()
             follow[ctrl] &= ~obs
             if follow.any():
-                moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
-                xyz[dyn] = hold_invisible(moved, vis[dyn])
-            if cfg.carry_k > 0:
-                xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k)
+                xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
+            # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
+            xyz[dyn] = (carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k) if cfg.carry_k > 0
+                        else hold_invisible(xyz[dyn], vis[dyn]))
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
 
