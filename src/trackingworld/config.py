@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 DC_TARGETS = ("frame", "prior", "local")  # OptimConfig.dc_target
+UPSAMPLERS = ("convex", "convex-mean", "bilinear")  # Track2DConfig.upsampler
 STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
 
 

@@ -142,6 +142,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _track_args(p) -> None:
+    from trackingworld.config import UPSAMPLERS
+
     g = p.add_argument_group("2D tracking")
     g.add_argument("--tracks", help="precomputed tracks .npz (CoTracker or TAPNet layout) instead of tracking")
     g.add_argument("--tracker", default="flow", choices=["flow", "cotracker3"],
@@ -154,7 +156,7 @@ def _track_args(p) -> None:
     g.add_argument("--cover-radius", type=float, default=1.0, help="r: px within which a pixel is covered")
     g.add_argument("--min-component", type=int, default=50, help="tau: smallest new component (px)")
     g.add_argument("--dense-mode", default="upsample", choices=["upsample", "direct"])
-    g.add_argument("--upsampler", default="convex", choices=["convex", "convex-mean", "bilinear"],
+    g.add_argument("--upsampler", default="convex", choices=UPSAMPLERS,
                    help="convex: weighted affine fit of the grid neighbours at each pixel; convex-mean: their "
                         "weighted mean (the paper)")
     g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])

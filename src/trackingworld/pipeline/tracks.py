@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from trackingworld.config import Track2DConfig
+from trackingworld.config import UPSAMPLERS, Track2DConfig
 from trackingworld.errors import InputError
 from trackingworld.tracking2d.base import TrackResult
 from trackingworld.tracking2d.dense import DenseConfig, DenseTracker
@@ -28,8 +28,8 @@ def upsample_config(name: str) -> UpsampleConfig:
     """The upsampler named on the command line: convex | convex-mean | bilinear."""
     if name == "convex-mean":
         return UpsampleConfig(mode="convex", affine_ridge=-1.0)
-    if name not in ("convex", "bilinear"):
-        raise InputError(f"unknown upsampler {name!r} (choose from convex, convex-mean, bilinear)")
+    if name not in UPSAMPLERS:
+        raise InputError(f"unknown upsampler {name!r} (choose from {', '.join(UPSAMPLERS)})")
     return UpsampleConfig(mode=name)
 
 
