@@ -450,3 +450,20 @@ def test_paper_settings_of_the_departures_run_and_land_in_the_config(tiny_scene,
     assert (cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"]) == ("idw", "prior", 0, 0)
     optim = json.loads((out / "optim.json").read_text())
     assert "static_fitted" not in optim
+
+
+def test_sample_maps_reads_only_the_visible_observations_when_asked():
+    from trackingworld.pipeline.lift import sample_maps
+
+    rng = np.random.default_rng(0)
+    maps = rng.uniform(1, 5, (4, 20, 30)).astype(np.float32)
+    uv = rng.uniform(0, 29, (50, 4, 2))
+    vis = rng.random((50, 4)) < 0.6
+    dense = sample_maps(maps, uv)
+    sparse = sample_maps(maps, uv, vis, fill=-1.0)
+    np.testing.assert_array_equal(sparse[vis], dense[vis])
+    assert (sparse[~vis] == -1).all()
+    # bilinear, border replicated: an integer pixel reads the map there
+    pix = np.array([[[3.0, 7.0], [0.0, 0.0], [29.0, 19.0], [40.0, -5.0]]])
+    got = sample_maps(maps, pix)[0]
+    assert got == pytest.approx([maps[0, 7, 3], maps[1, 0, 0], maps[2, 19, 29], maps[3, 0, 29]])

@@ -8,14 +8,24 @@ from trackingworld.geometry import unproject
 from trackingworld.tracking2d.flow_tracker import sample_image
 
 
-def sample_maps(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear sample of ``maps [T,H,W]`` at ``uv [N,T,2]`` (border replicated) -> ``[N,T]``."""
+def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = None,
+                fill: float = 1.0) -> np.ndarray:
+    """Bilinear sample of ``maps [T,H,W]`` at ``uv [N,T,2]`` (border replicated) -> ``[N,T]`` float32.
+    With ``visible [N,T]`` only the visible observations are sampled and the others are ``fill`` (finite, so
+    that masked terms stay zero): a dense video's hidden entries of ``[N,T]`` outgrow the visible ones."""
     N, T = uv.shape[:2]
-    per_frame = np.ascontiguousarray(uv.transpose(1, 0, 2), np.float32)  # [T,N,2]: one contiguous read per frame
-    out = np.empty((T, N), np.float32)
+    if visible is None:
+        per_frame = np.ascontiguousarray(uv.transpose(1, 0, 2), np.float32)  # [T,N,2]: one contiguous read a frame
+        out = np.empty((T, N), np.float32)
+        for t in range(T):
+            out[t] = sample_image(maps[t].astype(np.float32), per_frame[t])
+        return np.ascontiguousarray(out.T)
+    out = np.full((N, T), fill, np.float32)
+    vis_t = np.ascontiguousarray(visible.T)
     for t in range(T):
-        out[t] = sample_image(maps[t].astype(np.float32), per_frame[t])
-    return np.ascontiguousarray(out.T)
+        v = np.flatnonzero(vis_t[t])
+        out[v, t] = sample_image(maps[t].astype(np.float32), uv[v, t].astype(np.float32))
+    return out
 
 
 def lift_camera_frame(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -111,7 +111,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     qf = tr.queries[:, 0].astype(np.int64)
     info: dict = {"tracks": int(N)}
     with tm("labels"):
-        D = sample_maps(prior, tr.tracks).astype(np.float64)
+        D = sample_maps(prior, tr.tracks, vis).astype(np.float64)  # 1 where hidden (never read)
         labels = label_tracks(tr.tracks, vis, qf, masks, cfg.mask_margin_px)
         static_idx = np.flatnonzero(labels == STATIC)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
@@ -280,7 +280,7 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarr
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), or times that ratio propagated by IDW from the nearest static tracks (``local``)."""
-    target = D[dyn].copy()
+    target = D[dyn]
     if mode == "prior":
         return target
     if mode not in DC_TARGETS:
@@ -320,10 +320,10 @@ def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k
 
 
 def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
-    """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` (invisible frames held from the nearest
-    visible one)."""
+    """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` where ``vis`` (zero elsewhere: the caller
+    fills the hidden frames)."""
     if cfg.no_dynamic_opt:  # "w/o D.O.T": the raw prior lifted with the final poses
-        return hold_invisible(transform(poses[None], unproject(uv, raw, K)), vis)
+        return np.where(vis[..., None], transform(poses[None], unproject(uv, raw, K)), 0.0)
     lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
     nb = stage3.neighbours(transform(poses[None], unproject(uv, target, K)), vis, qf, cfg.arap_k)
     p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device)
@@ -342,7 +342,7 @@ def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype,
     out = np.zeros(uv.shape[:2] + (3,))
     kk, tt = np.nonzero(vis)
     out[kk, tt] = X.detach().cpu().numpy()
-    return hold_invisible(out, vis)
+    return out
 
 
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
