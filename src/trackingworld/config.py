@@ -93,6 +93,9 @@ class OptimConfig:
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.
     mask_dynamic_px: float = 1.0
+    # ... from at most about this many of each track's visible frames, spread over its span with both ends
+    # (0: all). 120 frames: 4.95 -> 2.12 s, the same measured accuracy; seed 0: 145 of 145k labels change
+    test_frames: int = 16
     # speed-up (appendix): one optimised static track per (query frame, round(xy / cell)) cell
     downsample_cell: int = 8  # 0: optimise every static track
     # of their observations, keep in each (frame, cell) cell those of the cell_cap tracks nearest their own query

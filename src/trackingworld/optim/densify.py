@@ -89,8 +89,9 @@ def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float) -> tuple[
     each frame: (track [R], frame [R]) index arrays in frame order. What the video depth needs of a dense set
     of tracks, whose visible observations grow faster than the frames times the pixels."""
     n_out, t_out = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    vis_t = np.ascontiguousarray(vis.T)  # [T,N]: a frame's flags in one contiguous read
     for t in range(vis.shape[1]):
-        v = np.flatnonzero(vis[:, t])
+        v = np.flatnonzero(vis_t[t])
         v = v[thin_references(uv[v, t], cell)]
         n_out.append(v)
         t_out.append(np.full(len(v), t))

@@ -192,7 +192,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
             # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
             # decision for all 72,464 tracks, points within 0.11 mm of float64's)
-            still, Xc, worst = fits_static(uv[cand], D[cand], vis[cand], K, R, t, cfg, torch.float32, device)
+            vc = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
+            still, Xc, worst = fits_static(uv[cand], D[cand], vc, K, R, t, cfg, torch.float32, device)
             if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
                 still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
             fixed = cand[still]
@@ -209,10 +210,21 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         rest = np.union1d(rest, np.flatnonzero((labels == AMBIGUOUS) & (vis.sum(1) < 2)))
         ref_ratio = camera_depths(xyz[ok_s2], poses) / np.maximum(D[ok_s2], 1e-6)
         moving_flag = moving_s2.astype(np.float64)
+        fit = rest[vis[rest].sum(1) >= 2] if cfg.static_rebuild == "fit" else rest[:0]
+        placed = np.ones(N, bool)  # the tracks that get their position here (the others are fitted below)
+        placed[fit] = False
+        vis_s2 = np.ascontiguousarray(vis[s2].T)
         for q in np.unique(qf[rest]):
-            who = rest[qf[rest] == q]
-            v = np.flatnonzero(vis[s2, q])
+            who_all = rest[qf[rest] == q]
+            who = who_all[placed[who_all]]
+            v = np.flatnonzero(vis_s2[q])
             refs = s2[v]
+            if len(refs):
+                mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who_all, q], D[who_all, q], K,
+                                     cfg.idw_k)
+                dynamic[who_all[mv >= 0.5]] = True
+            if not len(who):
+                continue
             r_ok = ~moving_s2[v]
             if r_ok.sum() == 0:
                 ratio = np.full(len(who), np.nanmedian(ref_ratio) if ref_ratio.size else 1.0)
@@ -222,10 +234,6 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                                         uv[who, q], D[who, q], K, cfg.idw_k)
             pts = unproject(uv[who, q], ratio * D[who, q], K)
             xyz[who] = transform(poses[q], pts)[:, None]
-            if len(refs):
-                mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who, q], D[who, q], K, cfg.idw_k)
-                dynamic[who[mv >= 0.5]] = True
-        fit = rest[vis[rest].sum(1) >= 2] if cfg.static_rebuild == "fit" else rest[:0]
         if len(fit):  # triangulated with the poses held; the moving flags stay the optimised neighbours'
             for a in range(0, len(fit), FIT_CHUNK):  # in chunks: the Gauss-Newton blocks are per observation
                 c = fit[a:a + FIT_CHUNK]
@@ -287,9 +295,10 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarr
         raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
     n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
+    vis_t = np.ascontiguousarray(vis[dyn].T)
     for tt in range(vis.shape[1]):
         ref = slice(bounds[tt], bounds[tt + 1])
-        w = np.flatnonzero(vis[dyn, tt])
+        w = np.flatnonzero(vis_t[tt])
         if bounds[tt] == bounds[tt + 1] or not len(w):
             continue
         if mode == "frame":
@@ -309,9 +318,10 @@ def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k
     cd = dyn[ctrl]
     corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
     out = xyz[dyn]
+    follow_t, ref_t = np.ascontiguousarray(follow.T), np.ascontiguousarray(ref_obs.T)
     for t in range(T):
-        w = np.flatnonzero(follow[:, t])
-        v = np.flatnonzero(ref_obs[:, t])
+        w = np.flatnonzero(follow_t[t])
+        v = np.flatnonzero(ref_t[t])
         if not len(w):
             continue
         r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
