@@ -42,6 +42,7 @@ ROWS = {
     "every static track optimised (no speed-up)": ("trackingworld", {"downsample_cell": 0}, ""),
     "static tracks rebuilt by IDW (appendix)": ("trackingworld", {"static_rebuild": "idw"}, ""),
     "stage-3 target = raw prior (paper)": ("trackingworld", {"dc_target": "prior"}, ""),
+    "stage-3 target = per-frame median ratio": ("trackingworld", {"dc_target": "frame"}, ""),
     "stage-3 target = local ratio": ("trackingworld", {"dc_target": "local"}, ""),
     "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, ""),
     "mask-dynamic test by offsets alone": ("trackingworld", {"mask_dynamic_px": 0.0}, ""),

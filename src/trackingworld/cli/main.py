@@ -225,7 +225,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
     g.add_argument("--dc-target", default=d.dc_target, choices=DC_TARGETS,
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
-                        "z / prior median (default), or that ratio propagated from the nearest static tracks")
+                        "z / prior median, that ratio propagated from the nearest static tracks, or a robust "
+                        "smooth field of it over the image (default)")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
                    help="hidden frames of dynamic tracks follow this many neighbours' motion (0: held)")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,

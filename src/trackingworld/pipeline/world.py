@@ -11,6 +11,7 @@ from functools import partial
 import cv2
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, OptimConfig, RunConfig
 from trackingworld.errors import InputError
@@ -26,6 +27,7 @@ from trackingworld.optim.densify import (
 )
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
+from trackingworld.optim.ratio_field import fit_log_field
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
@@ -48,6 +50,7 @@ def timed(timings: dict, name: str, verbose: bool):
         print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
+MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 FIT_CHUNK = 1 << 17  # static tracks per as-static fit of the rebuild (bounds its memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
@@ -244,7 +247,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
 
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
-        target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K)
+        target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
+                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px))
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
             cd = dyn[ctrl]
@@ -284,10 +288,14 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
     return n, t, z / np.maximum(D[n, t], 1e-6)
 
 
-def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarray:
+def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
+                  field: tuple[tuple[int, int], float, float] = ((8, 6), 0.01, 4.0)) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
-    tracks (``frame``), or times that ratio propagated by IDW from the nearest static tracks (``local``)."""
+    tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
+    robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
+    gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
+    blurred with the object's), which needs the image ``shape`` (h, w))."""
     target = D[dyn]
     if mode == "prior":
         return target
@@ -303,9 +311,18 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K) -> np.ndarr
             continue
         if mode == "frame":
             target[w, tt] *= np.median(ratio[ref])
-        else:
+        elif mode == "local":
             target[w, tt] *= propagate_ratio(uv[n[ref], tt], D[n[ref], tt], ratio[ref], uv[dyn[w], tt],
                                              D[dyn[w], tt], K, 4)
+        else:
+            cells, smooth, margin = field
+            ref_uv, ref_ratio = uv[n[ref], tt], ratio[ref]
+            if margin > 0:
+                near = cKDTree(uv[dyn[w], tt]).query(ref_uv, k=1, workers=-1)[0] <= margin
+                if (~near).sum() >= MIN_FIELD_SAMPLES:
+                    ref_uv, ref_ratio = ref_uv[~near], ref_ratio[~near]
+            f = fit_log_field(ref_uv, np.log(np.maximum(ref_ratio, 1e-6)), shape, cells, smooth)
+            target[w, tt] *= np.exp(f(uv[dyn[w], tt]))
     return target
 
 

@@ -1,0 +1,96 @@
+"""A smooth field over one image fitted to scattered samples: the prior's local depth correction.
+
+A monocular depth prior is off by more than one scale per frame: its error is a smooth multiplicative warp
+over the image that drifts from frame to frame. The static tracks measure it where they are (the ratio of
+their bundle-adjusted camera depth to the prior); stage 3 needs it where the moving objects are, which the
+static tracks surround but do not cover. One median per frame misses the warp; the nearest static tracks
+(``propagate_ratio``) follow the noise of a few samples and the blurred prior at the objects' borders.
+
+This fits ``log(ratio)`` with a bilinear grid of ``(gx + 1) x (gy + 1)`` nodes spanning the image, a
+first-difference smoothness penalty between neighbouring nodes (which also carries the field into the parts
+of the image with no samples) and a Cauchy reweighting against outliers. The grid has tens of nodes, so the
+normal equations are solved densely. scipy's ``RBFInterpolator`` / ``griddata`` interpolate, but they do not
+smooth robustly with a bounded number of unknowns, which is why this is written here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LogField:
+    """A fitted field: ``values [(gy+1)*(gx+1)]`` at the grid nodes (row-major, y down), plus ``offset``."""
+
+    values: np.ndarray
+    offset: float
+    shape: tuple[int, int]  # (h, w) pixels of the image the grid spans
+    cells: tuple[int, int]  # (gx, gy) grid cells across and down
+
+    def __call__(self, uv: np.ndarray) -> np.ndarray:
+        """The field at pixels ``uv [Q,2]`` (x right, y down) -> ``[Q]`` (log units, like the samples)."""
+        idx, w = _bilinear(uv, self.shape, self.cells)
+        return (self.values[idx] * w).sum(1) + self.offset
+
+
+def _bilinear(uv: np.ndarray, shape: tuple[int, int], cells: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The four grid nodes around each pixel ``uv [Q,2]`` and their bilinear weights, both ``[Q,4]``."""
+    h, w = shape
+    gx, gy = cells
+    p = np.asarray(uv, np.float64).reshape(-1, 2)  # float64: a float32 clip at gx - 1e-9 rounds up to gx
+    x = np.clip(p[:, 0] / max(w - 1, 1) * gx, 0.0, gx - 1e-9)
+    y = np.clip(p[:, 1] / max(h - 1, 1) * gy, 0.0, gy - 1e-9)
+    i, j = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - i, y - j
+    nx = gx + 1
+    idx = np.stack([j * nx + i, j * nx + i + 1, (j + 1) * nx + i, (j + 1) * nx + i + 1], 1)
+    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+    return idx, wts
+
+
+def _difference_operator(cells: tuple[int, int]) -> np.ndarray:
+    """``L^T L`` of the first differences between horizontally and vertically neighbouring nodes."""
+    gx, gy = cells
+    node = np.arange((gx + 1) * (gy + 1)).reshape(gy + 1, gx + 1)
+    a = np.concatenate([node[:, :-1].ravel(), node[:-1].ravel()])
+    b = np.concatenate([node[:, 1:].ravel(), node[1:].ravel()])
+    m = node.size
+    LtL = np.zeros((m, m))
+    np.add.at(LtL, (a, a), 1.0)
+    np.add.at(LtL, (b, b), 1.0)
+    np.add.at(LtL, (a, b), -1.0)
+    np.add.at(LtL, (b, a), -1.0)
+    return LtL
+
+
+def fit_log_field(uv: np.ndarray, values: np.ndarray, shape: tuple[int, int], cells: tuple[int, int] = (8, 6),
+                  smooth: float = 0.01, scale: float = 0.02, iters: int = 4) -> LogField:
+    """Robust smooth field through samples ``values [R]`` (log units) at pixels ``uv [R,2]`` of an image of
+    ``shape`` (h, w).
+
+    ``smooth``: weight of the node differences per sample per node (independent of how many samples there
+    are); ``scale``: the Cauchy scale of the residuals (0.02 = 2% in depth); ``iters``: reweighted solves.
+    The field is fitted about the samples' median; nodes with no samples near them take their values from
+    their neighbours through the smoothness penalty. No samples: a field of zeros.
+    """
+    values = np.asarray(values, np.float64)
+    m = (cells[0] + 1) * (cells[1] + 1)
+    if len(values) == 0:
+        return LogField(np.zeros(m), 0.0, shape, cells)
+    offset = float(np.median(values))
+    y = values - offset
+    idx, w = _bilinear(uv, shape, cells)
+    rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
+    penalty = smooth * len(values) / m * _difference_operator(cells) + 1e-9 * np.eye(m)
+    robust = np.ones(len(values))
+    x = np.zeros(m)
+    for _ in range(max(iters, 1)):
+        wr = w * robust[:, None]
+        A = np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m)
+        b = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
+        x = np.linalg.solve(A + penalty, b)
+        r = (x[idx] * w).sum(1) - y
+        robust = 1.0 / (1.0 + (r / scale) ** 2)
+    return LogField(x, offset, shape, cells)
