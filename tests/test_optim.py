@@ -439,6 +439,8 @@ def test_stage3_target_frame_removes_each_frames_prior_scale():
     assert np.abs(raw / z_true[dyn] - 1).max() > 0.05
     with pytest.raises(ValueError, match="dc_target"):
         world.stage3_target("aligned", xyz, uv, vis, D, dyn, static, c2w, K)
+    with pytest.raises(ValueError, match="shape"):
+        world.stage3_target("field", xyz, uv, vis, D, dyn, static, c2w, K)
 
 
 def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cannot():

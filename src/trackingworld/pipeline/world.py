@@ -301,6 +301,8 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
         return target
     if mode not in DC_TARGETS:
         raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
+    if mode == "field" and shape is None:
+        raise ValueError("dc_target 'field' needs the image shape (h, w)")
     n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
     vis_t = np.ascontiguousarray(vis[dyn].T)
