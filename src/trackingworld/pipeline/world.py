@@ -289,13 +289,13 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float] = ((8, 6), 0.01, 4.0)) -> np.ndarray:
+                  field: tuple[tuple[int, int], float, float] | None = None) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
     robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
     gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's), which needs the image ``shape`` (h, w))."""
+    blurred with the object's; None: OptimConfig's defaults), which needs the image ``shape`` (h, w))."""
     target = D[dyn]
     if mode == "prior":
         return target
@@ -303,6 +303,9 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
         raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
     if mode == "field" and shape is None:
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
+    if field is None:
+        field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px)
+    cells, smooth, margin = field
     n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
     vis_t = np.ascontiguousarray(vis[dyn].T)
@@ -317,14 +320,13 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
             target[w, tt] *= propagate_ratio(uv[n[ref], tt], D[n[ref], tt], ratio[ref], uv[dyn[w], tt],
                                              D[dyn[w], tt], K, 4)
         else:
-            cells, smooth, margin = field
-            ref_uv, ref_ratio = uv[n[ref], tt], ratio[ref]
+            q_uv, ref_uv, ref_ratio = uv[dyn[w], tt], uv[n[ref], tt], ratio[ref]
             if margin > 0:
-                near = cKDTree(uv[dyn[w], tt]).query(ref_uv, k=1, workers=-1)[0] <= margin
+                near = cKDTree(q_uv).query(ref_uv, k=1, workers=-1)[0] <= margin
                 if (~near).sum() >= MIN_FIELD_SAMPLES:
                     ref_uv, ref_ratio = ref_uv[~near], ref_ratio[~near]
             f = fit_log_field(ref_uv, np.log(np.maximum(ref_ratio, 1e-6)), shape, cells, smooth)
-            target[w, tt] *= np.exp(f(uv[dyn[w], tt]))
+            target[w, tt] *= np.exp(f(q_uv))
     return target
 
 
