@@ -485,11 +485,12 @@ def test_paper_settings_of_the_departures_run_and_land_in_the_config(tiny_scene,
     out = tmp_path / "paper"
     assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
                  "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", "--static-rebuild", "idw",
-                 "--dc-target", "prior", "--carry-k", "0", "--mask-dynamic-px", "0"]) == 0
+                 "--dc-target", "prior", "--carry-k", "0", "--mask-dynamic-px", "0", "--depth-mover", "0"]) == 0
     cfg = json.loads((out / "config.json").read_text())["optim"]
-    assert (cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"]) == ("idw", "prior", 0, 0)
+    assert ((cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"], cfg["depth_mover_log"])
+            == ("idw", "prior", 0, 0, 0))
     optim = json.loads((out / "optim.json").read_text())
-    assert "static_fitted" not in optim
+    assert "static_fitted" not in optim and "depth_movers" not in optim
 
 
 def test_sample_maps_reads_only_the_visible_observations_when_asked():

@@ -78,6 +78,12 @@ class OptimConfig:
     offset_stat: str = "max"  # max (paper) | pNN, a percentile: statistic of ||O(i,t)|| over the visible frames
     # focal length refined in stage 2 (stage2.refine_focal): auto = when the intrinsics were not given | on | off
     refine_focal: str = "auto"
+    # movers the masks missed that slide along the epipolar lines (a static point at another depth explains
+    # their pixels): static tracks whose fitted depth disagrees with the prior by this much (log units, after the
+    # frame's field) in a local majority of a window_px square, in most of their frames, become dynamic
+    # (optim.depth_movers; not in the paper; 0: off)
+    depth_mover_log: float = 0.05
+    depth_mover_window_px: float = 20.0
     # stage 3: dynamic objects
     lambda_arap: float = 100.0
     lambda_ts: float = 10.0

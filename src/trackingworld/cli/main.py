@@ -232,6 +232,12 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
+    g.add_argument("--depth-mover", type=float, default=d.depth_mover_log, metavar="LOG",
+                   help="static tracks whose fitted depth disagrees with the prior by this much (log units) in a "
+                        "local majority of most of their frames become dynamic: movers along the epipolar lines "
+                        "that the masks missed (0: off, the paper)")
+    g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
+                   help="side of the square (px) of that local majority")
     g.add_argument("--static-rebuild", default=d.static_rebuild, choices=STATIC_REBUILDS,
                    help="static tracks not optimised: triangulated with the poses held (fit) or rebuilt on "
                         "their query ray at the IDW-propagated depth (idw, the paper's appendix)")
@@ -251,6 +257,7 @@ def _optim_config(a):
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
         carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,
+        depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 

@@ -25,6 +25,7 @@ from trackingworld.optim.densify import (
     ratio_maps,
     thinned_observations,
 )
+from trackingworld.optim.depth_movers import depth_movers
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.ratio_field import fit_log_field
@@ -50,6 +51,7 @@ def timed(timings: dict, name: str, verbose: bool):
         print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
+DEPTH_MOVER_ROUNDS = 2  # rounds of (fields of the static tracks, depth-discrepancy test)
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 FIT_CHUNK = 1 << 17  # static tracks per as-static fit of the rebuild (bounds its memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
@@ -245,6 +247,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
+    if cfg.depth_mover_log > 0:
+        with tm("depth_movers"):
+            # static tracks whose fitted depth disagrees with the prior region by region: movers along the
+            # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
+            cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+            movers = np.zeros(len(cand), bool)
+            for _ in range(DEPTH_MOVER_ROUNDS):  # the fields again without the movers found: they pull them
+                ref = np.setdiff1d(np.flatnonzero(~dynamic), cand[movers], assume_unique=True)
+                fields = static_fields(ref, uv, vis, xyz, D, poses, prior.shape[1:], cfg.dc_field_cells,
+                                       cfg.dc_field_smooth)
+                k, t_obs, e = depth_discrepancy(cand, uv, vis, xyz, D, poses, fields)
+                movers = depth_movers(k, t_obs, uv[cand[k], t_obs], e, len(cand), T, prior.shape[1:],
+                                      cfg.depth_mover_log, cfg.depth_mover_window_px)
+            dynamic[cand[movers]] = True
+            info["depth_movers"] = int(movers.sum())
+
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
@@ -306,9 +324,16 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
     if field is None:
         field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px)
     cells, smooth, margin = field
+    vis_t = np.ascontiguousarray(vis[dyn].T)
+    if mode == "field":
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin)
+        for tt, f in enumerate(fields):
+            w = np.flatnonzero(vis_t[tt])
+            if f is not None and len(w):
+                target[w, tt] *= np.exp(f(uv[dyn[w], tt]))
+        return target
     n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
-    vis_t = np.ascontiguousarray(vis[dyn].T)
     for tt in range(vis.shape[1]):
         ref = slice(bounds[tt], bounds[tt + 1])
         w = np.flatnonzero(vis_t[tt])
@@ -316,18 +341,54 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
             continue
         if mode == "frame":
             target[w, tt] *= np.median(ratio[ref])
-        elif mode == "local":
+        else:
             target[w, tt] *= propagate_ratio(uv[n[ref], tt], D[n[ref], tt], ratio[ref], uv[dyn[w], tt],
                                              D[dyn[w], tt], K, 4)
-        else:
-            q_uv, ref_uv, ref_ratio = uv[dyn[w], tt], uv[n[ref], tt], ratio[ref]
-            if margin > 0:
-                near = cKDTree(q_uv).query(ref_uv, k=1, workers=-1)[0] <= margin
-                if (~near).sum() >= MIN_FIELD_SAMPLES:
-                    ref_uv, ref_ratio = ref_uv[~near], ref_ratio[~near]
-            f = fit_log_field(ref_uv, np.log(np.maximum(ref_ratio, 1e-6)), shape, cells, smooth)
-            target[w, tt] *= np.exp(f(q_uv))
     return target
+
+
+def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells: tuple[int, int], smooth: float,
+                  near=None, margin: float = 0.0) -> list:
+    """Per frame, the robust smooth field (``optim.ratio_field.LogField``, log units) of the ratio camera z /
+    prior of the ``static`` tracks' thinned observations (None for a frame without any). ``near`` (track
+    indices) with ``margin`` px: the static observations this close to one of theirs visible in the frame are
+    left out while at least MIN_FIELD_SAMPLES remain."""
+    n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
+    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
+    near_t = None if near is None or margin <= 0 else np.ascontiguousarray(vis[near].T)
+    out = []
+    for tt in range(vis.shape[1]):
+        ref = slice(bounds[tt], bounds[tt + 1])
+        if bounds[tt] == bounds[tt + 1]:
+            out.append(None)
+            continue
+        ref_uv, ref_ratio = uv[n[ref], tt], ratio[ref]
+        w = np.flatnonzero(near_t[tt]) if near_t is not None else []
+        if len(w):
+            close = cKDTree(uv[near[w], tt]).query(ref_uv, k=1, workers=-1)[0] <= margin
+            if (~close).sum() >= MIN_FIELD_SAMPLES:
+                ref_uv, ref_ratio = ref_uv[~close], ref_ratio[~close]
+        out.append(fit_log_field(ref_uv, np.log(np.maximum(ref_ratio, 1e-6)), shape, cells, smooth))
+    return out
+
+
+def depth_discrepancy(tracks, uv, vis, xyz, D, poses, fields) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The visible observations of ``tracks`` [n] (indices) and their log discrepancy between the camera depth
+    of their world position and the prior, less the frame's field (``static_fields``). Returns (position in
+    ``tracks`` [M], frame [M], e [M]) in frame order; frames without a field are left out."""
+    k, t = np.nonzero(np.ascontiguousarray(vis[tracks].T))[::-1]  # frame-major: [M] track position, frame
+    n = tracks[k]
+    z = np.einsum("mj,mj->m", invert_pose(poses)[t, 2, :3], xyz[n, t]) + invert_pose(poses)[t, 2, 3]
+    e = np.log(np.maximum(z, 1e-6) / np.maximum(D[n, t], 1e-6))
+    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
+    keep = np.ones(len(t), bool)
+    for tt, f in enumerate(fields):
+        s = slice(bounds[tt], bounds[tt + 1])
+        if f is None:
+            keep[s] = False
+        elif bounds[tt] < bounds[tt + 1]:
+            e[s] -= f(uv[n[s], tt])
+    return k[keep], t[keep], e[keep]
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:

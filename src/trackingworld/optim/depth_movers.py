@@ -1,0 +1,65 @@
+"""Movers the masks missed whose image motion a static point explains: the depth-discrepancy test.
+
+Stage 2 calls a background track a mover when no static point reprojects onto it (its offsets reach epsilon).
+An object sliding along the epipolar lines of the camera's motion fails that test: a static point at another
+depth traces the same pixels, and the bundle adjustment places it there. Only the depth prior tells: the
+fitted point is then consistently nearer or farther than the prior says, on every track of the object, in
+every frame.
+
+The test, per visible observation of each static track: the discrepancy ``e = log(z / D) - f_t(uv)`` between
+the camera depth ``z`` of its fitted point and the prior ``D``, less the frame's smooth correction field of the
+static tracks (``optim.ratio_field``: the prior's own scale and warp). One observation is noisy (the prior's
+noise, its blur at depth edges), so the decision is a local majority: per frame, the fraction of observations
+over ``e >= thresh`` (or ``<= -thresh``) in a window of ``window_px`` around each one, and a track is a mover
+when more than half of its frames have a majority in the same direction. A median filter of scattered samples
+is what this is; per frame it is counts on a grid of cells and two box filters (OpenCV), so the cost stays
+linear in the observations.
+
+Not in the paper (its depth term, in metres, switches the offsets on only beyond 2.5 m of disagreement, see
+``stage2``); ``depth_mover_log = 0`` turns it off.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames: int, shape: tuple[int, int],
+                   window_px: float, cell_px: float = 4.0) -> np.ndarray:
+    """[M] float: for each observation (``frame [M]`` int, ``uv [M,2]`` px, ``flag [M]`` bool) the fraction of
+    flagged observations of its frame within a ``window_px`` square around its ``cell_px`` grid cell."""
+    h, w = shape
+    gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
+    cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
+    cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
+    idx = (frame.astype(np.int64) * gh + cy) * gw + cx
+    size = n_frames * gh * gw
+    k = max(int(round(window_px / cell_px)) | 1, 1)  # odd, in cells
+    votes = np.bincount(idx, weights=flag.astype(np.float64), minlength=size).reshape(n_frames, gh, gw)
+    counts = np.bincount(idx, minlength=size).astype(np.float64).reshape(n_frames, gh, gw)
+    frac = np.empty_like(votes)
+    for t in range(n_frames):  # box sums (unnormalised) of both; their ratio is the window's fraction
+        v = cv2.boxFilter(votes[t], -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        c = cv2.boxFilter(counts[t], -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        frac[t] = v / np.maximum(c, 1.0)
+    return frac.reshape(-1)[idx]
+
+
+def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
+                 n_frames: int, shape: tuple[int, int], thresh: float = 0.05, window_px: float = 20.0) -> np.ndarray:
+    """[n_tracks] bool: the tracks whose static point disagrees with the prior, region by region.
+
+    The visible observations of the tracks tested: ``track [M]`` and ``frame [M]`` indices, pixels ``uv [M,2]``
+    (x right, y down) and the log discrepancy ``e [M]`` (fitted camera depth over the prior, the frame's field
+    removed). ``thresh``: log units (0.05 = 5%); ``window_px``: side of the neighbourhood's square (pixels of the
+    image ``shape`` (h, w)). A track with no observation is never flagged."""
+    out = np.zeros(n_tracks, bool)
+    if not len(track):
+        return out
+    n_obs = np.bincount(track, minlength=n_tracks)
+    for sign in (1.0, -1.0):
+        frac = local_majority(frame, uv, sign * e >= thresh, n_frames, shape, window_px)
+        won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
+        out |= won * 2 > n_obs
+    return out

@@ -1,0 +1,80 @@
+"""The depth-discrepancy test of movers the masks missed (optim.depth_movers) and its glue in the pipeline."""
+
+import numpy as np
+
+from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
+from trackingworld.optim.depth_movers import depth_movers, local_majority
+from trackingworld.pipeline import world
+
+K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
+
+
+def test_local_majority_is_the_fraction_flagged_in_the_window_of_cells(rng):
+    T, M, cell, win = 3, 4000, 4.0, 20.0
+    frame = rng.integers(0, T, M)
+    uv = rng.uniform([0, 0], [319.9, 239.9], (M, 2))
+    flag = rng.random(M) < 0.3
+    got = local_majority(frame, uv, flag, T, (240, 320), win, cell)
+    c = np.floor(uv / cell).astype(int)
+    half = int(round(win / cell)) // 2  # a 5 x 5 cell window
+    for i in rng.choice(M, 200, replace=False):  # by brute force
+        near = (frame == frame[i]) & (np.abs(c - c[i]) <= half).all(1)
+        assert np.isclose(got[i], flag[near].mean())
+
+
+def _patch_scene(rng, e_mover: float):
+    """One frame set of scattered observations: a 60 x 40 px patch of 'mover' tracks whose discrepancy is
+    ``e_mover`` (plus noise), the rest static with noise and 5% isolated outliers of +-0.2."""
+    T, N = 4, 6000
+    uv = rng.uniform([0, 0], [319, 239], (N, 2))
+    mover = (uv[:, 0] > 100) & (uv[:, 0] < 160) & (uv[:, 1] > 80) & (uv[:, 1] < 120)
+    track, frame = np.repeat(np.arange(N), T), np.tile(np.arange(T), N)
+    e = rng.normal(0, 0.015, N * T) + np.where(mover[track], e_mover, 0.0)
+    out = rng.random(N * T) < 0.05
+    e[out] += rng.choice([-0.2, 0.2], out.sum())
+    return track, frame, uv[track] + rng.normal(0, 0.5, (N * T, 2)), e, mover
+
+
+def test_depth_movers_flag_a_coherent_region_and_not_scattered_outliers(rng):
+    for e_mover in (0.1, -0.1):  # farther or nearer than the prior
+        track, frame, uv, e, mover = _patch_scene(rng, e_mover)
+        got = depth_movers(track, frame, uv, e, len(mover), 4, (240, 320), thresh=0.05, window_px=20)
+        # the patch's border tracks see half static neighbours: most, not all, of it is flagged
+        assert got[mover].mean() > 0.8
+        assert got[~mover].mean() < 0.01
+    assert not depth_movers(track, frame, uv, np.zeros_like(e), len(mover), 4, (240, 320)).any()
+    assert not depth_movers(*(np.zeros(0, int),) * 2, np.zeros((0, 2)), np.zeros(0), 5, 4, (240, 320)).any()
+
+
+def test_depth_discrepancy_removes_the_priors_smooth_warp_and_finds_the_epipolar_mover(rng):
+    """Static points and a patch whose fitted static points are 12% too far (what a mover along the epipolar
+    lines gets from the bundle adjustment), under a prior off by a per-frame scale and a smooth warp of +-8%: with
+    each frame's field removed, the patch is found and no static region is; the raw log ratio without the field
+    flags static regions."""
+    T, N = 5, 5000
+    c2w = np.tile(np.eye(4), (T, 1, 1))
+    c2w[:, 0, 3] = 0.05 * np.arange(T)
+    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
+    z = rng.uniform(4, 8, N)
+    patch = (np.abs(uv0[:, 0] - 200) < 30) & (np.abs(uv0[:, 1] - 100) < 25)
+    X_true = unproject(uv0, z, K)
+    X_fit = unproject(uv0, z * np.where(patch, 1.12, 1.0), K)  # fitted static points, frame 0's camera = world
+    xyz = np.repeat(X_fit[:, None], T, 1)
+    uv, z_cam = project(transform(invert_pose(c2w)[None], np.repeat(X_true[:, None], T, 1)), K)
+    x, y = uv[..., 0] / 320, uv[..., 1] / 320
+    t = np.arange(T)[None]
+    warp = 0.08 * np.cos(2 * np.pi * (0.6 * x - 0.4 * y) + 0.4 * t) + 0.1 * rng.standard_normal(T)[None]
+    D = z_cam * np.exp(warp + rng.normal(0, 0.01, z_cam.shape))
+    vis = np.ones((N, T), bool)
+    static = np.arange(N)
+    got = np.zeros(N, bool)
+    for _ in range(2):  # as the pipeline: the fields again without the movers of the first round
+        fields = world.static_fields(static[~got], uv, vis, xyz, D, c2w, (240, 320), (8, 6), 0.01)
+        k, fr, e = world.depth_discrepancy(static, uv, vis, xyz, D, c2w, fields)
+        assert len(k) == N * T and (np.diff(fr) >= 0).all()
+        got = depth_movers(k, fr, uv[static[k], fr], e, N, T, (240, 320), 0.05, 20)
+    assert got[patch].mean() > 0.8 and got[~patch].mean() < 0.01
+    flat = [None if f is None else type(f)(f.values * 0, 0.0, f.shape, f.cells) for f in fields]
+    k, fr, e = world.depth_discrepancy(static, uv, vis, xyz, D, c2w, flat)
+    raw = depth_movers(k, fr, uv[static[k], fr], e, N, T, (240, 320), 0.05, 20)
+    assert raw[~patch].mean() > 0.05
