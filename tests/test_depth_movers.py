@@ -67,14 +67,16 @@ def test_depth_discrepancy_removes_the_priors_smooth_warp_and_finds_the_epipolar
     D = z_cam * np.exp(warp + rng.normal(0, 0.01, z_cam.shape))
     vis = np.ones((N, T), bool)
     static = np.arange(N)
+    k, fr, e_raw = world.log_depth_ratios(static, vis, xyz, D, c2w)
+    assert len(k) == N * T and (np.diff(fr) >= 0).all()
+    refs = world.reference_ratios(static, uv, vis, xyz, D, c2w)
     got = np.zeros(N, bool)
     for _ in range(2):  # as the pipeline: the fields again without the movers of the first round
-        fields = world.static_fields(static[~got], uv, vis, xyz, D, c2w, (240, 320), (8, 6), 0.01)
-        k, fr, e = world.depth_discrepancy(static, uv, vis, xyz, D, c2w, fields)
-        assert len(k) == N * T and (np.diff(fr) >= 0).all()
+        fields = world.static_fields(static[~got], uv, vis, xyz, D, c2w, (240, 320), (8, 6), 0.01, refs=refs)
+        keep, e = world.less_fields(uv[static[k], fr], fr, e_raw, fields)
+        assert keep.all()
         got = depth_movers(k, fr, uv[static[k], fr], e, N, T, (240, 320), 0.05, 20)
     assert got[patch].mean() > 0.8 and got[~patch].mean() < 0.01
-    flat = [None if f is None else type(f)(f.values * 0, 0.0, f.shape, f.cells) for f in fields]
-    k, fr, e = world.depth_discrepancy(static, uv, vis, xyz, D, c2w, flat)
-    raw = depth_movers(k, fr, uv[static[k], fr], e, N, T, (240, 320), 0.05, 20)
+    # without the fields (the raw log ratio) static regions are flagged
+    raw = depth_movers(k, fr, uv[static[k], fr], e_raw, N, T, (240, 320), 0.05, 20)
     assert raw[~patch].mean() > 0.05

@@ -64,9 +64,11 @@ def neighbours(xyz: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, k: int
         kk = min(k + 1, len(cand))
         _, nn = cKDTree(xyz[cand, q]).query(xyz[who, q], k=kk, workers=-1)
         nn = cand[nn.reshape(len(who), kk)]
-        for i, w in enumerate(who):
-            others = nn[i][nn[i] != w][:k]
-            out[w, :len(others)] = others
+        other = nn != who[:, None]  # a track is its own nearest neighbour (or one of several at distance 0)
+        order = np.argsort(~other, axis=1, kind="stable")[:, :k]  # the others first, nearest first
+        pick = np.take_along_axis(nn, order, 1)
+        pick[~np.take_along_axis(other, order, 1)] = -1
+        out[who, :pick.shape[1]] = pick
     return out
 
 

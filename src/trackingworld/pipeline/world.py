@@ -187,6 +187,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         info["stage2"]["moving"] = int(moving_s2.sum())
 
     xyz = np.zeros((N, T, 3), np.float64)
+    refs = None  # thinned static observations (reference_ratios), made once by the depth-mover test
     dynamic = labels == DYNAMIC
     dynamic[s2[moving_s2]] = True
     with tm("classify"):
@@ -252,13 +253,17 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+            static_now = np.flatnonzero(~dynamic)
+            refs = reference_ratios(static_now, uv, vis, xyz, D, poses)  # thinned once, filtered below
+            k, t_obs, e_raw = log_depth_ratios(cand, vis, xyz, D, poses)
+            uv_obs = uv[cand[k], t_obs]
             movers = np.zeros(len(cand), bool)
             for _ in range(DEPTH_MOVER_ROUNDS):  # the fields again without the movers found: they pull them
-                ref = np.setdiff1d(np.flatnonzero(~dynamic), cand[movers], assume_unique=True)
+                ref = np.setdiff1d(static_now, cand[movers], assume_unique=True)
                 fields = static_fields(ref, uv, vis, xyz, D, poses, prior.shape[1:], cfg.dc_field_cells,
-                                       cfg.dc_field_smooth)
-                k, t_obs, e = depth_discrepancy(cand, uv, vis, xyz, D, poses, fields)
-                movers = depth_movers(k, t_obs, uv[cand[k], t_obs], e, len(cand), T, prior.shape[1:],
+                                       cfg.dc_field_smooth, refs=refs)
+                keep, e = less_fields(uv_obs, t_obs, e_raw, fields)
+                movers = depth_movers(k[keep], t_obs[keep], uv_obs[keep], e, len(cand), T, prior.shape[1:],
                                       cfg.depth_mover_log, cfg.depth_mover_window_px)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
@@ -266,7 +271,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
-                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px))
+                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px),
+                               refs)
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
             cd = dyn[ctrl]
@@ -307,13 +313,14 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float] | None = None) -> np.ndarray:
+                  field: tuple[tuple[int, int], float, float] | None = None, refs=None) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
     robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
     gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's; None: OptimConfig's defaults), which needs the image ``shape`` (h, w))."""
+    blurred with the object's; None: OptimConfig's defaults), which needs the image ``shape`` (h, w)); ``refs``:
+    see :func:`static_fields`."""
     target = D[dyn]
     if mode == "prior":
         return target
@@ -326,7 +333,7 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
     cells, smooth, margin = field
     vis_t = np.ascontiguousarray(vis[dyn].T)
     if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin)
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs)
         for tt, f in enumerate(fields):
             w = np.flatnonzero(vis_t[tt])
             if f is not None and len(w):
@@ -348,12 +355,18 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
 
 
 def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells: tuple[int, int], smooth: float,
-                  near=None, margin: float = 0.0) -> list:
+                  near=None, margin: float = 0.0, refs=None) -> list:
     """Per frame, the robust smooth field (``optim.ratio_field.LogField``, log units) of the ratio camera z /
     prior of the ``static`` tracks' thinned observations (None for a frame without any). ``near`` (track
     indices) with ``margin`` px: the static observations this close to one of theirs visible in the frame are
-    left out while at least MIN_FIELD_SAMPLES remain."""
-    n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
+    left out while at least MIN_FIELD_SAMPLES remain. ``refs``: the thinned observations of a superset of
+    ``static`` already made (``reference_ratios``), kept where their track is in ``static``."""
+    if refs is None:
+        n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
+    else:
+        member = np.zeros(vis.shape[0], bool)
+        member[static] = True
+        n, t, ratio = (a[member[refs[0]]] for a in refs)
     bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
     near_t = None if near is None or margin <= 0 else np.ascontiguousarray(vis[near].T)
     out = []
@@ -372,23 +385,29 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return out
 
 
-def depth_discrepancy(tracks, uv, vis, xyz, D, poses, fields) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The visible observations of ``tracks`` [n] (indices) and their log discrepancy between the camera depth
-    of their world position and the prior, less the frame's field (``static_fields``). Returns (position in
-    ``tracks`` [M], frame [M], e [M]) in frame order; frames without a field are left out."""
-    k, t = np.nonzero(np.ascontiguousarray(vis[tracks].T))[::-1]  # frame-major: [M] track position, frame
+def log_depth_ratios(tracks, vis, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The visible observations of ``tracks`` [n] (indices) in frame order and the log ratio of the camera depth
+    of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""
+    k, t = np.nonzero(np.ascontiguousarray(vis[tracks].T))[::-1]  # frame-major
     n = tracks[k]
-    z = np.einsum("mj,mj->m", invert_pose(poses)[t, 2, :3], xyz[n, t]) + invert_pose(poses)[t, 2, 3]
-    e = np.log(np.maximum(z, 1e-6) / np.maximum(D[n, t], 1e-6))
-    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
+    w2c = invert_pose(poses)
+    z = np.einsum("mj,mj->m", w2c[t, 2, :3], xyz[n, t]) + w2c[t, 2, 3]
+    return k, t, np.log(np.maximum(z, 1e-6) / np.maximum(D[n, t], 1e-6))
+
+
+def less_fields(uv_obs, t, e, fields) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (pixels ``uv_obs [M,2]``, frame ``t [M]`` ascending, log ratio ``e [M]``) less their frame's
+    field (``static_fields``): (kept [M] bool: the frame has a field, e - field at the kept ones)."""
+    bounds = np.searchsorted(t, np.arange(len(fields) + 1))
     keep = np.ones(len(t), bool)
+    out = e.copy()
     for tt, f in enumerate(fields):
         s = slice(bounds[tt], bounds[tt + 1])
         if f is None:
             keep[s] = False
         elif bounds[tt] < bounds[tt + 1]:
-            e[s] -= f(uv[n[s], tt])
-    return k[keep], t[keep], e[keep]
+            out[s] -= f(uv_obs[s])
+    return keep, out[keep]
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
