@@ -187,7 +187,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         info["stage2"]["moving"] = int(moving_s2.sum())
 
     xyz = np.zeros((N, T, 3), np.float64)
-    refs = None  # thinned static observations (reference_ratios), made once by the depth-mover test
+    thinned = None  # the static tracks' thinned observations (reference_ratios), made by the depth-mover test
     dynamic = labels == DYNAMIC
     dynamic[s2[moving_s2]] = True
     with tm("classify"):
@@ -254,14 +254,14 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
             static_now = np.flatnonzero(~dynamic)
-            refs = reference_ratios(static_now, uv, vis, xyz, D, poses)  # thinned once, filtered below
+            thinned = reference_ratios(static_now, uv, vis, xyz, D, poses)  # thinned once, filtered below
             k, t_obs, e_raw = log_depth_ratios(cand, vis, xyz, D, poses)
             uv_obs = uv[cand[k], t_obs]
             movers = np.zeros(len(cand), bool)
             for _ in range(DEPTH_MOVER_ROUNDS):  # the fields again without the movers found: they pull them
                 ref = np.setdiff1d(static_now, cand[movers], assume_unique=True)
                 fields = static_fields(ref, uv, vis, xyz, D, poses, prior.shape[1:], cfg.dc_field_cells,
-                                       cfg.dc_field_smooth, refs=refs)
+                                       cfg.dc_field_smooth, refs=thinned)
                 keep, e = less_fields(uv_obs, t_obs, e_raw, fields)
                 movers = depth_movers(k[keep], t_obs[keep], uv_obs[keep], e, len(cand), T, prior.shape[1:],
                                       cfg.depth_mover_log, cfg.depth_mover_window_px)
@@ -272,7 +272,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         dyn = np.flatnonzero(dynamic)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
                                prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px),
-                               refs)
+                               thinned)
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
             cd = dyn[ctrl]
