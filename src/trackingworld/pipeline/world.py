@@ -255,7 +255,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
             static_now = np.flatnonzero(~dynamic)
             thinned = reference_ratios(static_now, uv, vis, xyz, D, poses)  # thinned once, filtered below
-            k, t_obs, e_raw = log_depth_ratios(cand, vis, xyz, D, poses)
+            # at most about test_frames of each track's frames, spread over its span (as the classification)
+            obs_c = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
+            k, t_obs, e_raw = log_depth_ratios(cand, obs_c, xyz, D, poses)
             uv_obs = uv[cand[k], t_obs]
             movers = np.zeros(len(cand), bool)
             for _ in range(DEPTH_MOVER_ROUNDS):  # the fields again without the movers found: they pull them
@@ -385,10 +387,10 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return out
 
 
-def log_depth_ratios(tracks, vis, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The visible observations of ``tracks`` [n] (indices) in frame order and the log ratio of the camera depth
-    of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""
-    k, t = np.nonzero(np.ascontiguousarray(vis[tracks].T))[::-1]  # frame-major
+def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The observations ``obs [n,T]`` (bool) of ``tracks`` [n] (indices) in frame order and the log ratio of the
+    camera depth of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""
+    k, t = np.nonzero(np.ascontiguousarray(obs.T))[::-1]  # frame-major
     n = tracks[k]
     w2c = invert_pose(poses)
     z = np.einsum("mj,mj->m", w2c[t, 2, :3], xyz[n, t]) + w2c[t, 2, 3]
