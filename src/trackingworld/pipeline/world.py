@@ -89,10 +89,15 @@ def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[n
 def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
     """``[n,T]`` bool: of each track's visible frames ``vis [n,T]``, at most about ``m`` spread evenly over its
     visible span (every ceil(count / m)-th one and the last)."""
-    rank = np.cumsum(vis, axis=1) - 1
-    count = vis.sum(1, keepdims=True)
+    count = vis.sum(1)
     step = np.maximum(-(-count // m), 1)
-    return vis & ((rank % step == 0) | (rank == count - 1))
+    out = vis.copy()
+    long = np.flatnonzero(step > 1)  # the others keep every visible frame
+    if len(long):
+        v = vis[long]
+        rank = np.cumsum(v, axis=1, dtype=np.int32) - 1
+        out[long] = v & ((rank % step[long, None].astype(np.int32) == 0) | (rank == count[long, None] - 1))
+    return out
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
