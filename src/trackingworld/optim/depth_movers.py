@@ -6,7 +6,8 @@ depth traces the same pixels, and the bundle adjustment places it there. Only th
 fitted point is then consistently nearer or farther than the prior says, on every track of the object, in
 every frame.
 
-The test, per visible observation of each static track: the discrepancy ``e = log(z / D) - f_t(uv)`` between
+The test, per visible observation of each static track (the pipeline passes at most about 16 of each track's
+frames, spread over its span): the discrepancy ``e = log(z / D) - f_t(uv)`` between
 the camera depth ``z`` of its fitted point and the prior ``D``, less the frame's smooth correction field of the
 static tracks (``optim.ratio_field``: the prior's own scale and warp). One observation is noisy (the prior's
 noise, its blur at depth edges), so the decision is a local majority: per frame, the fraction of observations
@@ -23,6 +24,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from trackingworld.geometry import invert_pose
 
 
 def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames: int, shape: tuple[int, int],
@@ -63,3 +66,29 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
         won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
         out |= won * 2 > n_obs
     return out
+
+
+def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The observations ``obs [n,T]`` (bool) of ``tracks`` [n] (indices) in frame order and the log ratio of the
+    camera depth of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""
+    k, t = np.nonzero(np.ascontiguousarray(obs.T))[::-1]  # frame-major
+    n = tracks[k]
+    w2c = invert_pose(poses)
+    z = np.einsum("mj,mj->m", w2c[t, 2, :3], xyz[n, t]) + w2c[t, 2, 3]
+    return k, t, np.log(np.maximum(z, 1e-6) / np.maximum(D[n, t], 1e-6))
+
+
+def less_fields(uv_obs, t, e, fields) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (pixels ``uv_obs [M,2]``, frame ``t [M]`` ascending, log ratio ``e [M]``) less their frame's
+    field (``fields``: per frame a callable of pixels, ``pipeline.world.static_fields``, or None): (kept [M]
+    bool: the frame has a field, e - field at the kept ones)."""
+    bounds = np.searchsorted(t, np.arange(len(fields) + 1))
+    keep = np.ones(len(t), bool)
+    out = e.copy()
+    for tt, f in enumerate(fields):
+        s = slice(bounds[tt], bounds[tt + 1])
+        if f is None:
+            keep[s] = False
+        elif bounds[tt] < bounds[tt + 1]:
+            out[s] -= f(uv_obs[s])
+    return keep, out[keep]

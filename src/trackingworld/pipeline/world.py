@@ -25,7 +25,7 @@ from trackingworld.optim.densify import (
     ratio_maps,
     thinned_observations,
 )
-from trackingworld.optim.depth_movers import depth_movers
+from trackingworld.optim.depth_movers import depth_movers, less_fields, log_depth_ratios
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.ratio_field import fit_log_field
@@ -258,20 +258,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            static_now = np.flatnonzero(~dynamic)
-            thinned = reference_ratios(static_now, uv, vis, xyz, D, poses)  # thinned once, filtered below
-            # at most about test_frames of each track's frames, spread over its span (as the classification)
-            obs_c = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
-            k, t_obs, e_raw = log_depth_ratios(cand, obs_c, xyz, D, poses)
-            uv_obs = uv[cand[k], t_obs]
-            movers = np.zeros(len(cand), bool)
-            for _ in range(DEPTH_MOVER_ROUNDS):  # the fields again without the movers found: they pull them
-                ref = np.setdiff1d(static_now, cand[movers], assume_unique=True)
-                fields = static_fields(ref, uv, vis, xyz, D, poses, prior.shape[1:], cfg.dc_field_cells,
-                                       cfg.dc_field_smooth, refs=thinned)
-                keep, e = less_fields(uv_obs, t_obs, e_raw, fields)
-                movers = depth_movers(k[keep], t_obs[keep], uv_obs[keep], e, len(cand), T, prior.shape[1:],
-                                      cfg.depth_mover_log, cfg.depth_mover_window_px)
+            movers, thinned = _depth_movers(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
+                                            prior.shape[1:], cfg)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
 
@@ -392,29 +380,24 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return out
 
 
-def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The observations ``obs [n,T]`` (bool) of ``tracks`` [n] (indices) in frame order and the log ratio of the
-    camera depth of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""
-    k, t = np.nonzero(np.ascontiguousarray(obs.T))[::-1]  # frame-major
-    n = tracks[k]
-    w2c = invert_pose(poses)
-    z = np.einsum("mj,mj->m", w2c[t, 2, :3], xyz[n, t]) + w2c[t, 2, 3]
-    return k, t, np.log(np.maximum(z, 1e-6) / np.maximum(D[n, t], 1e-6))
-
-
-def less_fields(uv_obs, t, e, fields) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (pixels ``uv_obs [M,2]``, frame ``t [M]`` ascending, log ratio ``e [M]``) less their frame's
-    field (``static_fields``): (kept [M] bool: the frame has a field, e - field at the kept ones)."""
-    bounds = np.searchsorted(t, np.arange(len(fields) + 1))
-    keep = np.ones(len(t), bool)
-    out = e.copy()
-    for tt, f in enumerate(fields):
-        s = slice(bounds[tt], bounds[tt + 1])
-        if f is None:
-            keep[s] = False
-        elif bounds[tt] < bounds[tt + 1]:
-            out[s] -= f(uv_obs[s])
-    return keep, out[keep]
+def _depth_movers(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig):
+    """The depth-discrepancy test (``optim.depth_movers``) of the tracks ``cand`` (indices) against the fields of
+    the ``static`` ones, in DEPTH_MOVER_ROUNDS rounds (the fields again without the movers found: they pull them).
+    Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by stage 3's target)."""
+    thinned = reference_ratios(static, uv, vis, xyz, D, poses)  # thinned once, filtered by static_fields
+    # at most about test_frames of each track's frames, spread over its span (as the classification)
+    obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
+    k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
+    uv_obs = uv[cand[k], t]
+    movers = np.zeros(len(cand), bool)
+    for _ in range(DEPTH_MOVER_ROUNDS):
+        ref = np.setdiff1d(static, cand[movers], assume_unique=True)
+        fields = static_fields(ref, uv, vis, xyz, D, poses, shape, cfg.dc_field_cells, cfg.dc_field_smooth,
+                               refs=thinned)
+        keep, e = less_fields(uv_obs, t, e_raw, fields)
+        movers = depth_movers(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
+                              cfg.depth_mover_log, cfg.depth_mover_window_px)
+    return movers, thinned
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
