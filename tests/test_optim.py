@@ -243,6 +243,20 @@ def test_video_alone_runs_weight_free(tiny_scene, tmp_path):
     assert m["camera"]["ate_pct_path"] < 15  # measured 6.7; identity poses (the baseline) give 50.8
 
 
+def test_depth_mover_test_is_off_without_a_depth_prior(tiny_scene, tmp_path, capsys):
+    """--depth none (a constant prior) gives the depth-discrepancy test nothing to compare with: it does not run;
+    with the given prior it does."""
+    inp = tiny_scene / "input"
+    ran = {}
+    for depth in ("none", str(inp / "depth.npy")):
+        out = tmp_path / ("none" if depth == "none" else "file")
+        assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", depth, "--masks", str(inp / "masks"),
+                     "--intrinsics", str(inp / "intrinsics.txt"), "--max-frames", "6"]) == 0
+        ran[out.name] = "depth_movers" in json.loads((out / "timings.json").read_text())
+    assert ran == {"none": False, "file": True}
+    assert "[depth_movers] off: --depth none" in capsys.readouterr().err
+
+
 def _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free):
     """The damping-free Gauss-Newton step of the full system (poses, points, focal), solved densely."""
     T, N = p.n_frames, p.n_points

@@ -33,7 +33,7 @@ from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
-from trackingworld.priors.sources import intrinsics_given
+from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
@@ -460,7 +460,14 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(allowed)}")
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
-    out = optimise(tr, inp.depth, inp.masks, inp.K, cfg.optim, timings, cfg.device, cfg.seed, refine)
+    optim_cfg = cfg.optim
+    if depth_source(cfg.inputs.depth) == "none" and optim_cfg.depth_mover_log > 0:
+        # a constant prior says nothing about depth: the depth-discrepancy test would flag every static object
+        # that stands out from the smooth field (seed 0: 1,366 tracks, static kept 93.4 -> 92.5)
+        optim_cfg = replace(optim_cfg, depth_mover_log=0.0)
+        if optim_cfg.verbose:
+            print("[depth_movers] off: --depth none gives no depth to compare with", file=sys.stderr, flush=True)
+    out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine)
     if report is not None:
         report.update(out["info"])
     K_in = inp.K_in.copy()
