@@ -32,6 +32,13 @@ def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames
                    window_px: float, cell_px: float = 4.0) -> np.ndarray:
     """[M] float: for each observation (``frame [M]`` int, ``uv [M,2]`` px, ``flag [M]`` bool) the fraction of
     flagged observations of its frame within a ``window_px`` square around its ``cell_px`` grid cell."""
+    return _window_fractions(frame, uv, [flag], n_frames, shape, window_px, cell_px)[0]
+
+
+def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
+                      cell_px: float = 4.0) -> list:
+    """:func:`local_majority` of each of ``flags`` (``[M]`` bool each), the cells and the windows' counts of
+    observations made once for all of them."""
     h, w = shape
     gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
     cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
@@ -39,14 +46,15 @@ def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames
     idx = (frame.astype(np.int64) * gh + cy) * gw + cx
     size = n_frames * gh * gw
     k = max(int(round(window_px / cell_px)) | 1, 1)  # odd, in cells
-    votes = np.bincount(idx, weights=flag.astype(np.float64), minlength=size).reshape(n_frames, gh, gw)
-    counts = np.bincount(idx, minlength=size).astype(np.float64).reshape(n_frames, gh, gw)
-    frac = np.empty_like(votes)
-    for t in range(n_frames):  # box sums (unnormalised) of both; their ratio is the window's fraction
-        v = cv2.boxFilter(votes[t], -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        c = cv2.boxFilter(counts[t], -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        frac[t] = v / np.maximum(c, 1.0)
-    return frac.reshape(-1)[idx]
+
+    def window_sums(weights):  # per observation: the box sum (unnormalised) of weights over its window
+        grid = np.bincount(idx, weights=weights, minlength=size).reshape(n_frames, gh, gw)
+        out = np.stack([cv2.boxFilter(g, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+                        for g in grid])
+        return out.reshape(-1)[idx]
+
+    counts = window_sums(None)  # each observation's window holds at least itself
+    return [window_sums(f.astype(np.float64)) / counts for f in flags]
 
 
 def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
@@ -61,8 +69,7 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
     if not len(track):
         return out
     n_obs = np.bincount(track, minlength=n_tracks)
-    for sign in (1.0, -1.0):
-        frac = local_majority(frame, uv, sign * e >= thresh, n_frames, shape, window_px)
+    for frac in _window_fractions(frame, uv, [e >= thresh, e <= -thresh], n_frames, shape, window_px):
         won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
         out |= won * 2 > n_obs
     return out
