@@ -243,18 +243,19 @@ def test_video_alone_runs_weight_free(tiny_scene, tmp_path):
     assert m["camera"]["ate_pct_path"] < 15  # measured 6.7; identity poses (the baseline) give 50.8
 
 
-def test_depth_mover_test_is_off_without_a_depth_prior(tiny_scene, tmp_path, capsys):
-    """--depth none (a constant prior) gives the depth-discrepancy test nothing to compare with: it does not run;
-    with the given prior it does."""
+def test_depth_mover_test_and_refit_are_off_without_a_depth_prior(tiny_scene, tmp_path, capsys):
+    """--depth none (a constant prior) gives the depth-discrepancy test and the static refit nothing to compare
+    with: they do not run; with the given prior they do."""
     inp = tiny_scene / "input"
     ran = {}
     for depth in ("none", str(inp / "depth.npy")):
         out = tmp_path / ("none" if depth == "none" else "file")
         assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", depth, "--masks", str(inp / "masks"),
                      "--intrinsics", str(inp / "intrinsics.txt"), "--max-frames", "6"]) == 0
-        ran[out.name] = "depth_movers" in json.loads((out / "timings.json").read_text())
-    assert ran == {"none": False, "file": True}
-    assert "[depth_movers] off: --depth none" in capsys.readouterr().err
+        timings = json.loads((out / "timings.json").read_text())
+        ran[out.name] = ("depth_movers" in timings, "static_refit" in timings)
+    assert ran == {"none": (False, False), "file": (True, True)}
+    assert "[depth_movers] off, [static_refit] off: --depth none" in capsys.readouterr().err
 
 
 def _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free):
@@ -499,12 +500,13 @@ def test_paper_settings_of_the_departures_run_and_land_in_the_config(tiny_scene,
     out = tmp_path / "paper"
     assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
                  "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", "--static-rebuild", "idw",
-                 "--dc-target", "prior", "--carry-k", "0", "--mask-dynamic-px", "0", "--depth-mover", "0"]) == 0
+                 "--dc-target", "prior", "--carry-k", "0", "--mask-dynamic-px", "0", "--depth-mover", "0",
+                 "--no-prior-field", "--static-refit-dc", "0"]) == 0
     cfg = json.loads((out / "config.json").read_text())["optim"]
-    assert ((cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"], cfg["depth_mover_log"])
-            == ("idw", "prior", 0, 0, 0))
+    assert ((cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"], cfg["depth_mover_log"],
+             cfg["prior_field"], cfg["static_refit_dc"]) == ("idw", "prior", 0, 0, 0, False, 0))
     optim = json.loads((out / "optim.json").read_text())
-    assert "static_fitted" not in optim and "depth_movers" not in optim
+    assert not {"static_fitted", "depth_movers", "static_refit"} & set(optim)
 
 
 def test_sample_maps_reads_only_the_visible_observations_when_asked():

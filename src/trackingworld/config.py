@@ -123,6 +123,14 @@ class OptimConfig:
     # ... from at most about this many of its visible frames, spread over its span (0: all); seed 0: 10 frames
     # gave world static accuracy 66.5 against 67.2 with all, in 1.3 s instead of 3.4
     static_fit_frames: int = 10
+    # the static tracks' depth target outside stage 2: the prior times the field (optim.ratio_field) of the
+    # optimised static points' ratio z / prior in each frame (the prior's per-frame scale and smooth warp), as
+    # stage 3's target (not in the paper; False: the raw prior)
+    prior_field: bool = True
+    # after the depth-mover test every static point is fitted again with the poses held and the depth term's
+    # weight raised to this (lambda_dc of the fit, against that target; 0: off, not in the paper): the parallax
+    # of a track seen over a short baseline fixes its depth less well than the corrected prior does
+    static_refit_dc: float = 100.0
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.
     # cell_cap applies to the control tracks' observations too (per frame and dynamic_cell cell).

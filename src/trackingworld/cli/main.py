@@ -238,6 +238,12 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
+                   help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
+                        "optimised static points' z / prior (default); --no-prior-field: the raw prior")
+    g.add_argument("--static-refit-dc", type=float, default=d.static_refit_dc, metavar="LAMBDA",
+                   help="refit every static point against that corrected prior with this depth weight after the "
+                        "depth-mover test (0: off, the paper)")
     g.add_argument("--static-rebuild", default=d.static_rebuild, choices=STATIC_REBUILDS,
                    help="static tracks not optimised: triangulated with the poses held (fit) or rebuilt on "
                         "their query ray at the IDW-propagated depth (idw, the paper's appendix)")
@@ -258,7 +264,8 @@ def _optim_config(a):
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
         carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
-        refine_focal=a.refine_focal, downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
+        prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
+        downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 
 

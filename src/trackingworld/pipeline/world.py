@@ -192,6 +192,14 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         info["stage2"]["moving"] = int(moving_s2.sum())
 
     xyz = np.zeros((N, T, 3), np.float32)  # world metres: float32 is 0.1 um at 100 m, half the traffic
+    ok_s2 = s2[~moving_s2]
+    xyz[ok_s2] = X[~moving_s2][:, None]
+    Dfit = D  # the static tracks' depth target: the prior, or the prior times the optimised points' field
+    if cfg.prior_field:
+        with tm("prior_field"):
+            fields = static_fields(ok_s2, uv, vis, xyz, D, poses, prior.shape[1:], cfg.dc_field_cells,
+                                   cfg.dc_field_smooth)
+            Dfit = corrected_prior(D, uv, vis, fields)
     thinned = None  # the static tracks' thinned observations (reference_ratios), made by the depth-mover test
     dynamic = labels == DYNAMIC
     dynamic[s2[moving_s2]] = True
@@ -204,7 +212,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
             # decision for all 72,464 tracks, points within 0.11 mm of float64's)
             vc = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
-            still, Xc, worst = fits_static(uv[cand], D[cand], vc, K, R, t, cfg, torch.float32, device)
+            still, Xc, worst = fits_static(uv[cand], Dfit[cand], vc, K, R, t, cfg, torch.float32, device)
             if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
                 still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
             fixed = cand[still]
@@ -212,8 +220,6 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[cand[~still]] = True
             xyz[fixed] = Xc[still][:, None]
             info["classify"] = {"tested": int(len(cand)), "static": int(still.sum())}
-    ok_s2 = s2[~moving_s2]
-    xyz[ok_s2] = X[~moving_s2][:, None]
     with tm("rebuild_static"):
         # every other static / ambiguous track: its own ray at the query frame, depth from the propagated
         # scale of the optimised static points visible there (the appendix's speed-up, rebuilt by IDW)
@@ -246,10 +252,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             pts = unproject(uv[who, q], ratio * D[who, q], K)
             xyz[who] = transform(poses[q], pts)[:, None]
         if len(fit):  # triangulated with the poses held; the moving flags stay the optimised neighbours'
-            for a in range(0, len(fit), FIT_CHUNK):  # in chunks: the Gauss-Newton blocks are per observation
-                c = fit[a:a + FIT_CHUNK]
-                vf = spread_observations(vis[c], cfg.static_fit_frames) if cfg.static_fit_frames else vis[c]
-                xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device)[3].cpu().numpy()[:, None]
+            _fit_static_points(fit, uv, Dfit, vis, xyz, K, R, t, cfg, device)
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
@@ -263,6 +266,16 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
 
+    if cfg.static_refit_dc > 0 and not cfg.no_depth_consistency:
+        with tm("static_refit"):
+            # every static point again, poses held, its depth now held to the field-corrected prior: a track
+            # seen over a short baseline is placed by the prior, which the field has corrected, more than by
+            # its small parallax (after the depth-mover test, which needs the fits that follow the parallax)
+            refit = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+            _fit_static_points(refit, uv, Dfit, vis, xyz, K, R, t, replace(cfg, lambda_dc=cfg.static_refit_dc),
+                               device)
+            thinned = None  # stage 3's field from the refitted points
+            info["static_refit"] = int(len(refit))
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
@@ -292,6 +305,31 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "info": info}
+
+
+def corrected_prior(D, uv, vis, fields) -> np.ndarray:
+    """The prior sampled at the tracks, ``D [N,T]`` metres, times each frame's field at the visible observations
+    (``fields``: per frame a callable of pixels [M,2] -> log ratio [M], or None: that frame unchanged;
+    :func:`static_fields`): the prior's per-frame scale and smooth warp removed where the optimised static points
+    measured them. A copy; hidden observations unchanged. uv [N,T,2] px, vis [N,T]."""
+    out = D.copy()
+    vis_t = np.ascontiguousarray(vis.T)
+    for t, f in enumerate(fields):
+        w = np.flatnonzero(vis_t[t])
+        if f is not None and len(w):
+            out[w, t] *= np.exp(f(uv[w, t])).astype(out.dtype)
+    return out
+
+
+def _fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) -> None:
+    """``xyz[tracks]`` (in place, every frame) <- each track's static point with the poses held (stage 2's
+    objective with ``cfg``'s weights against the prior ``D``), from at most about ``static_fit_frames`` of its
+    visible frames, in float32 and in chunks of FIT_CHUNK tracks (the Gauss-Newton blocks are per
+    observation)."""
+    for a in range(0, len(tracks), FIT_CHUNK):
+        c = tracks[a:a + FIT_CHUNK]
+        vf = spread_observations(vis[c], cfg.static_fit_frames) if cfg.static_fit_frames else vis[c]
+        xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device)[3].cpu().numpy()[:, None]
 
 
 def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
@@ -461,12 +499,14 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(allowed)}")
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg = cfg.optim
-    if depth_source(cfg.inputs.depth) == "none" and optim_cfg.depth_mover_log > 0:
+    if depth_source(cfg.inputs.depth) == "none" and (optim_cfg.depth_mover_log > 0 or optim_cfg.static_refit_dc > 0):
         # a constant prior says nothing about depth: the depth-discrepancy test would flag every static object
-        # that stands out from the smooth field (seed 0: 1,366 tracks, static kept 93.4 -> 92.5)
-        optim_cfg = replace(optim_cfg, depth_mover_log=0.0)
+        # that stands out from the smooth field (seed 0: 1,366 tracks, static kept 93.4 -> 92.5), and the refit
+        # would flatten the static points onto that field
+        optim_cfg = replace(optim_cfg, depth_mover_log=0.0, static_refit_dc=0.0)
         if optim_cfg.verbose:
-            print("[depth_movers] off: --depth none gives no depth to compare with", file=sys.stderr, flush=True)
+            print("[depth_movers] off, [static_refit] off: --depth none gives no depth to compare with",
+                  file=sys.stderr, flush=True)
     out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine)
     if report is not None:
         report.update(out["info"])

@@ -1,0 +1,56 @@
+"""The static tracks' depth target outside stage 2 (the prior times the optimised points' field) and the refit
+of the static points against it."""
+
+import numpy as np
+import torch
+
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
+from trackingworld.optim import lie
+from trackingworld.pipeline import world
+
+K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
+
+
+def test_corrected_prior_scales_the_visible_observations_by_their_frames_field(rng):
+    N, T = 40, 3
+    D = rng.uniform(2, 6, (N, T)).astype(np.float32)
+    uv = rng.uniform(0, 300, (N, T, 2))
+    vis = rng.random((N, T)) < 0.7
+    fields = [lambda p: np.full(len(p), 0.1), None, lambda p: p[:, 0] / 1000.0]
+    out = world.corrected_prior(D, uv, vis, fields)
+    want = D.copy()
+    want[vis[:, 0], 0] *= np.exp(0.1)
+    want[vis[:, 2], 2] *= np.exp(uv[vis[:, 2], 2, 0] / 1000.0)
+    np.testing.assert_allclose(out, want, rtol=1e-6)
+    assert out.dtype == D.dtype and not np.shares_memory(out, D)
+
+
+def test_refit_against_the_corrected_prior_places_short_baseline_points_better(rng):
+    """Points seen over a 3 cm baseline at 4-8 m (parallax a few pixels) under a prior off by a per-frame scale
+    and a smooth warp of +-8%: the field of well-placed reference points (here the true depths, as the bundle
+    adjustment of long tracks gives them) corrects the prior, and the refit with a strong depth weight puts the
+    points several times closer to the truth than the stage-2 weights against the raw prior do."""
+    T, N = 4, 3000
+    c2w = np.tile(np.eye(4), (T, 1, 1))
+    c2w[:, 0, 3] = 0.01 * np.arange(T)
+    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
+    X = unproject(uv0, rng.uniform(4, 8, N), K)
+    uv, z = project(transform(invert_pose(c2w)[None], np.repeat(X[:, None], T, 1)), K)
+    uv = uv + rng.normal(0, 0.3, uv.shape)  # a 2D tracker's noise
+    x, y = uv[..., 0] / 320, uv[..., 1] / 320
+    warp = 0.08 * np.cos(2 * np.pi * (0.6 * x - 0.4 * y) + 0.4 * np.arange(T)) + rng.normal(0, 0.05, T)
+    D = (z * np.exp(warp + rng.normal(0, 0.02, z.shape))).astype(np.float32)
+    vis = np.ones((N, T), bool)
+    refs = np.arange(0, N, 3)
+    xyz_ref = np.repeat(X[:, None], T, 1).astype(np.float32)
+    fields = world.static_fields(refs, uv, vis, xyz_ref, D, c2w, (240, 320), (8, 6), 0.01)
+    R, t = lie.c2w_to_w2c(c2w, torch.float64, "cpu")
+    cfg = OptimConfig()
+    err = {}
+    for name, prior, lam in (("stage-2 weights, raw prior", D, cfg.lambda_dc),
+                             ("refit", world.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc)):
+        xyz = np.zeros((N, T, 3), np.float32)
+        world._fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu")
+        err[name] = np.median(np.abs(np.linalg.norm(xyz[:, 0] - X, axis=1) / X[:, 2]))
+    assert err["refit"] < 0.02 and err["refit"] < 0.4 * err["stage-2 weights, raw prior"], err
