@@ -7,23 +7,36 @@ import torch
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
 from trackingworld.optim import lie
+from trackingworld.optim.ratio_field import fit_log_field
 from trackingworld.pipeline import world
 
 K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
 
 
+def test_field_image_is_the_field_at_every_pixel(rng):
+    f = fit_log_field(rng.uniform([0, 0], [319, 239], (500, 2)), rng.normal(0, 0.05, 500), (240, 320))
+    ys, xs = np.mgrid[0:240, 0:320]
+    want = f(np.stack([xs.ravel(), ys.ravel()], 1)).reshape(240, 320)
+    img = f.image()
+    assert img.shape == (240, 320) and img.dtype == np.float32
+    np.testing.assert_allclose(img, want, atol=1e-6)
+
+
 def test_corrected_prior_scales_the_visible_observations_by_their_frames_field(rng):
-    N, T = 40, 3
+    N, T, shape = 400, 3, (240, 320)
     D = rng.uniform(2, 6, (N, T)).astype(np.float32)
-    uv = rng.uniform(0, 300, (N, T, 2))
+    uv = rng.uniform([0, 0], [319, 239], (N, T, 2))
     vis = rng.random((N, T)) < 0.7
-    fields = [lambda p: np.full(len(p), 0.1), None, lambda p: p[:, 0] / 1000.0]
+    fields = [fit_log_field(rng.uniform([0, 0], [319, 239], (300, 2)), rng.normal(0.1 * t, 0.05, 300), shape)
+              for t in range(T)]
+    fields[1] = None
     out = world.corrected_prior(D, uv, vis, fields)
     want = D.copy()
-    want[vis[:, 0], 0] *= np.exp(0.1)
-    want[vis[:, 2], 2] *= np.exp(uv[vis[:, 2], 2, 0] / 1000.0)
-    np.testing.assert_allclose(out, want, rtol=1e-6)
+    for t in (0, 2):
+        want[vis[:, t], t] *= np.exp(fields[t](uv[vis[:, t], t]))
+    np.testing.assert_allclose(out, want, rtol=5e-4)  # the image sampled between pixels: the same field
     assert out.dtype == D.dtype and not np.shares_memory(out, D)
+    assert not np.allclose(out[vis[:, 2], 2], D[vis[:, 2], 2])
 
 
 def test_refit_against_the_corrected_prior_places_short_baseline_points_better(rng):

@@ -34,6 +34,24 @@ class LogField:
         idx, w = _bilinear(uv, self.shape, self.cells)
         return (self.values[idx] * w).sum(1) + self.offset
 
+    def image(self) -> np.ndarray:
+        """The field at every pixel, ``[h,w]`` float32 (log units): the same values as calling it at the integer
+        pixels, from two small matrix products (the interpolation is separable), to be sampled at many points."""
+        h, w = self.shape
+        gx, gy = self.cells
+        nodes = self.values.reshape(gy + 1, gx + 1)
+        return (_axis_weights(h, gy) @ nodes @ _axis_weights(w, gx).T + self.offset).astype(np.float32)
+
+
+def _axis_weights(n: int, g: int) -> np.ndarray:
+    """``[n, g+1]``: the linear interpolation weights of the g + 1 nodes spanning n pixels, at each pixel."""
+    x = np.clip(np.arange(n) / max(n - 1, 1) * g, 0.0, g - 1e-9)
+    i = np.floor(x).astype(np.int64)
+    out = np.zeros((n, g + 1))
+    out[np.arange(n), i] = 1 - (x - i)
+    out[np.arange(n), i + 1] = x - i
+    return out
+
 
 def _bilinear(uv: np.ndarray, shape: tuple[int, int], cells: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """The four grid nodes around each pixel ``uv [Q,2]`` and their bilinear weights, both ``[Q,4]``."""
