@@ -61,9 +61,11 @@ def test_refit_against_the_corrected_prior_places_short_baseline_points_better(r
     R, t = lie.c2w_to_w2c(c2w, torch.float64, "cpu")
     cfg = OptimConfig()
     err = {}
-    for name, prior, lam in (("stage-2 weights, raw prior", D, cfg.lambda_dc),
-                             ("refit", world.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc)):
+    for name, prior, lam, iters in (("stage-2 weights, raw prior", D, cfg.lambda_dc, 6),
+                                    ("refit", world.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc,
+                                     world.REFIT_ITERS)):
         xyz = np.zeros((N, T, 3), np.float32)
-        world._fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu")
+        world._fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu",
+                                 iters)
         err[name] = np.median(np.abs(np.linalg.norm(xyz[:, 0] - X, axis=1) / X[:, 2]))
     assert err["refit"] < 0.02 and err["refit"] < 0.4 * err["stage-2 weights, raw prior"], err
