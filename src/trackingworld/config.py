@@ -131,6 +131,11 @@ class OptimConfig:
     # weight raised to this (lambda_dc of the fit, against that target; 0: off, not in the paper): the parallax
     # of a track seen over a short baseline fixes its depth less well than the corrected prior does
     static_refit_dc: float = 100.0
+    # the static tracks outside stage 2 that their optimised neighbours' vote calls moving (the appendix) are
+    # moving only if their own as-static test fails too, and the tracks seen once (no test possible) take the
+    # verdict of the tested tracks nearest them, those inside the masks included (not in the paper; False: the
+    # vote alone, mask-dynamic tracks seen once stay dynamic)
+    own_test: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.
     # cell_cap applies to the control tracks' observations too (per frame and dynamic_cell cell).

@@ -238,6 +238,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--own-test", action=argparse.BooleanOptionalAction, default=d.own_test,
+                   help="a static track its optimised neighbours call moving is moving only if its own as-static "
+                        "test fails too; a track seen once takes its tested neighbours' verdict (default); "
+                        "--no-own-test: the neighbours' vote alone (the appendix)")
     g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
                    help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
                         "optimised static points' z / prior (default); --no-prior-field: the raw prior")
@@ -264,7 +268,7 @@ def _optim_config(a):
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
         carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
-        prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
+        own_test=a.own_test, prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 

@@ -56,6 +56,7 @@ DEPTH_MOVER_ROUNDS = 2  # rounds of (fields of the static tracks, depth-discrepa
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
+VOTE_CELL_PX = 4  # the tested tracks a track seen once is voted on by: one per (query frame, 4 px square)
 FIT_CHUNK = 1 << 17  # static tracks per as-static fit of the rebuild (bounds its memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
@@ -87,6 +88,34 @@ def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[n
     worst = torch.zeros(pc.n_points, dtype=r_uv.dtype, device=r_uv.device)
     worst.scatter_reduce_(0, pc.pt, r_uv.norm(dim=-1), reduce="amax")
     return ~_moving(R, t, X, pc, cfg), X.cpu().numpy(), worst.cpu().numpy()
+
+
+def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
+    """:func:`fits_static` of ``tracks`` [n] (indices), from at most about ``cfg.test_frames`` of each one's
+    visible frames, in float32 and in chunks of FIT_CHUNK tracks (bounds the memory at large videos)."""
+    out = []
+    for a in range(0, len(tracks), FIT_CHUNK):
+        c = tracks[a:a + FIT_CHUNK]
+        vc = spread_observations(vis[c], cfg.test_frames) if cfg.test_frames else vis[c]
+        out.append(fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device))
+    return tuple(np.concatenate(x) for x in zip(*out, strict=True))
+
+
+def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int) -> np.ndarray:
+    """``[n]`` bool: dynamic or not, for the tracks ``once`` [n] (indices) seen in their query frame only, by the
+    inverse-distance-weighted vote of the ``k`` image-nearest ``voters`` (indices of tested tracks) visible in
+    that frame, each voting its ``dynamic`` flag ([N] bool), weights 1 / 3D distance of the points lifted with
+    the prior ``D`` [N,T] metres (a voter across a depth edge barely counts). uv [N,T,2] px, vis [N,T],
+    qf [N] query frames, K [3,3]. A track with no voter in its frame keeps its flag."""
+    out = dynamic[once].copy()
+    voters_t = np.ascontiguousarray(vis[voters].T)
+    for q in np.unique(qf[once]):
+        sel = np.flatnonzero(qf[once] == q)
+        who, d = once[sel], voters[voters_t[q]]
+        if len(d):
+            out[sel] = propagate_ratio(uv[d, q], D[d, q], dynamic[d].astype(np.float64), uv[who, q], D[who, q], K,
+                                       k) >= 0.5
+    return out
 
 
 def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
@@ -214,8 +243,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
             # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
             # decision for all 72,464 tracks, points within 0.11 mm of float64's)
-            vc = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
-            still, Xc, worst = fits_static(uv[cand], Dfit[cand], vc, K, R, t, cfg, torch.float32, device)
+            still, Xc, worst = fits_static_chunked(cand, uv, Dfit, vis, K, R, t, cfg, device)
             if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
                 still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
             fixed = cand[still]
@@ -223,16 +251,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[cand[~still]] = True
             xyz[fixed] = Xc[still][:, None]
             info["classify"] = {"tested": int(len(cand)), "static": int(still.sum())}
+    own = cfg.own_test  # (not in the paper) the static tracks' own observations have a say
     with tm("rebuild_static"):
         # every other static / ambiguous track: its own ray at the query frame, depth from the propagated
         # scale of the optimised static points visible there (the appendix's speed-up, rebuilt by IDW)
+        single = vis.sum(1) < 2
         rest = np.setdiff1d(np.flatnonzero(labels == STATIC), s2)
-        rest = np.union1d(rest, np.flatnonzero((labels == AMBIGUOUS) & (vis.sum(1) < 2)))
+        rest = np.union1d(rest, np.flatnonzero((labels != STATIC) & single) if own else
+                          np.flatnonzero((labels == AMBIGUOUS) & single))
         ref_ratio = camera_depths(xyz[ok_s2], poses) / np.maximum(D[ok_s2], 1e-6)
         moving_flag = moving_s2.astype(np.float64)
-        fit = rest[vis[rest].sum(1) >= 2] if cfg.static_rebuild == "fit" else rest[:0]
+        multi_rest = rest[~single[rest]]
+        once = rest[single[rest]] if own else rest[:0]  # voted on after the depth-mover test (below)
+        fit = multi_rest if cfg.static_rebuild == "fit" else rest[:0]
         placed = np.ones(N, bool)  # the tracks that get their position here (the others are fitted below)
         placed[fit] = False
+        voted = np.zeros(N, bool)  # moving by the vote of the optimised neighbours (the appendix)
         vis_s2 = np.ascontiguousarray(vis[s2].T)
         for q in np.unique(qf[rest]):
             who_all = rest[qf[rest] == q]
@@ -242,7 +276,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if len(refs):
                 mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who_all, q], D[who_all, q], K,
                                      cfg.idw_k)
-                dynamic[who_all[mv >= 0.5]] = True
+                voted[who_all[mv >= 0.5]] = True
             if not len(who):
                 continue
             r_ok = ~moving_s2[v]
@@ -254,7 +288,19 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                                         uv[who, q], D[who, q], K, cfg.idw_k)
             pts = unproject(uv[who, q], ratio * D[who, q], K)
             xyz[who] = transform(poses[q], pts)[:, None]
-        if len(fit):  # triangulated with the poses held; the moving flags stay the optimised neighbours'
+        if not own:
+            dynamic[voted] = True
+        else:
+            # a static track the vote calls moving is moving only if its own as-static test fails too: a
+            # neighbour that slipped onto a mover does not take its neighbours with it
+            suspects = multi_rest[voted[multi_rest]]
+            if p.offsets and len(suspects):
+                still = fits_static_chunked(suspects, uv, Dfit, vis, K, R, t, cfg, device)[0]
+                dynamic[suspects[~still]] = True
+                info["vote_tested"] = {"tested": int(len(suspects)), "static": int(still.sum())}
+            else:
+                dynamic[suspects] = True
+        if len(fit):  # triangulated with the poses held
             _fit_static_points(fit, uv, Dfit, vis, xyz, K, R, t, cfg, device)
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
@@ -268,6 +314,15 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                                             prior.shape[1:], cfg)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
+
+    if own and len(once):
+        with tm("rebuild_static"):
+            # a track seen once cannot be tested: it takes the verdict of the tested tracks nearest it (one per
+            # query frame and VOTE_CELL_PX square, prior-lifted 3D distance), the depth-mover test's included
+            multi = np.flatnonzero(~single)
+            voters = multi[cell_representatives(tr.queries[multi], VOTE_CELL_PX)]
+            dynamic[once] = vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, cfg.idw_k)
+            info["dynamic"] = int(dynamic.sum())
 
     if cfg.static_refit_dc > 0 and not cfg.no_depth_consistency:
         with tm("static_refit"):
