@@ -57,7 +57,7 @@ MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field nee
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
 VOTE_CELL_PX = 4  # the tested tracks a track seen once is voted on by: one per (query frame, 4 px square)
-FIT_CHUNK = 1 << 17  # static tracks per as-static fit of the rebuild (bounds its memory at large videos)
+FIT_CHUNK = 1 << 17  # tracks per chunk of the as-static fits and tests (bounds their memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
 FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
@@ -90,14 +90,19 @@ def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[n
     return ~_moving(R, t, X, pc, cfg), X.cpu().numpy(), worst.cpu().numpy()
 
 
-def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
-    """:func:`fits_static` of ``tracks`` [n] (indices), from at most about ``cfg.test_frames`` of each one's
-    visible frames, in float32 and in chunks of FIT_CHUNK tracks (bounds the memory at large videos)."""
-    out = []
+def _chunks(tracks, vis, frames: int):
+    """``tracks`` [n] (indices) in chunks of FIT_CHUNK (bounds the memory of the per-observation Gauss-Newton
+    blocks at large videos), each with its visible frames spread to at most about ``frames`` (0: all)."""
     for a in range(0, len(tracks), FIT_CHUNK):
         c = tracks[a:a + FIT_CHUNK]
-        vc = spread_observations(vis[c], cfg.test_frames) if cfg.test_frames else vis[c]
-        out.append(fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device))
+        yield c, spread_observations(vis[c], frames) if frames else vis[c]
+
+
+def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
+    """:func:`fits_static` of ``tracks`` [n] (indices), from at most about ``cfg.test_frames`` of each one's
+    visible frames, in float32 and in chunks (:func:`_chunks`)."""
+    out = [fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device)
+           for c, vc in _chunks(tracks, vis, cfg.test_frames)]
     return tuple(np.concatenate(x) for x in zip(*out, strict=True))
 
 
@@ -315,7 +320,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
 
-    if own and len(once):
+    if len(once):  # (own test only)
         with tm("rebuild_static"):
             # a track seen once cannot be tested: it takes the verdict of the tested tracks nearest it (one per
             # query frame and VOTE_CELL_PX square, prior-lifted 3D distance), the depth-mover test's included
@@ -383,11 +388,8 @@ def corrected_prior(D, uv, vis, fields) -> np.ndarray:
 def _fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device, iters: int = 6) -> None:
     """``xyz[tracks]`` (in place, every frame) <- each track's static point with the poses held (stage 2's
     objective with ``cfg``'s weights against the prior ``D``), from at most about ``static_fit_frames`` of its
-    visible frames, in float32 and in chunks of FIT_CHUNK tracks (the Gauss-Newton blocks are per
-    observation)."""
-    for a in range(0, len(tracks), FIT_CHUNK):
-        c = tracks[a:a + FIT_CHUNK]
-        vf = spread_observations(vis[c], cfg.static_fit_frames) if cfg.static_fit_frames else vis[c]
+    visible frames, in float32 and in chunks (:func:`_chunks`)."""
+    for c, vf in _chunks(tracks, vis, cfg.static_fit_frames):
         xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device, iters)[3].cpu().numpy()[:, None]
 
 
