@@ -25,10 +25,12 @@ from trackingworld.synth import render_and_write
 
 # the settings of the paper / the authors' code where this package departs from them (README)
 PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask_dynamic_px": 0.0,
-              "depth_mover_log": 0.0, "prior_field": False, "static_refit_dc": 0.0, "own_test": False}
+              "depth_mover_log": 0.0, "prior_field": False, "static_refit_dc": 0.0, "own_test": False,
+              "test_stat": "max", "static_outliers": False}
 
 # dense 2D tracks the rows run on (Track2DConfig fields)
-TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"}}
+TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"},
+          "nodrag": {"flow_drag_px": 0.0}}
 
 ROWS = {
     "full (lm solver, default)": ("trackingworld", {}, ""),
@@ -52,9 +54,12 @@ ROWS = {
     "static fits against the raw prior, no refit (paper)": ("trackingworld", {"prior_field": False,
                                                                            "static_refit_dc": 0.0}, ""),
     "static tracks judged by the neighbours' vote alone (appendix)": ("trackingworld", {"own_test": False}, ""),
-    "all eight as the paper": ("trackingworld", PAPER_LIKE, ""),
+    "tracks outside stage 2 tested by their largest offset (paper)": ("trackingworld", {"test_stat": "max"}, ""),
+    "static observations off their point kept": ("trackingworld", {"static_outliers": False}, ""),
+    "all ten as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
-    "all eight and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
+    "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),
+    "all ten and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
     "baseline (camera-centric)": ("baseline", {}, ""),
 }
 

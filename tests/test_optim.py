@@ -501,12 +501,14 @@ def test_paper_settings_of_the_departures_run_and_land_in_the_config(tiny_scene,
     assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
                  "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", "--static-rebuild", "idw",
                  "--dc-target", "prior", "--carry-k", "0", "--mask-dynamic-px", "0", "--depth-mover", "0",
-                 "--no-prior-field", "--static-refit-dc", "0", "--no-own-test"]) == 0
+                 "--no-prior-field", "--static-refit-dc", "0", "--no-own-test", "--test-stat", "max",
+                 "--no-static-outliers"]) == 0
     cfg = json.loads((out / "config.json").read_text())["optim"]
     assert ((cfg["static_rebuild"], cfg["dc_target"], cfg["carry_k"], cfg["mask_dynamic_px"], cfg["depth_mover_log"],
-             cfg["prior_field"], cfg["static_refit_dc"], cfg["own_test"]) == ("idw", "prior", 0, 0, 0, False, 0, False))
+             cfg["prior_field"], cfg["static_refit_dc"], cfg["own_test"], cfg["test_stat"], cfg["static_outliers"])
+            == ("idw", "prior", 0, 0, 0, False, 0, False, "max", False))
     optim = json.loads((out / "optim.json").read_text())
-    assert not {"static_fitted", "depth_movers", "static_refit", "vote_tested"} & set(optim)
+    assert not {"static_fitted", "depth_movers", "static_refit", "vote_tested", "static_outliers"} & set(optim)
 
 
 def test_sample_maps_reads_only_the_visible_observations_when_asked():

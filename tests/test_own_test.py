@@ -3,6 +3,7 @@ the tracks seen once (``OptimConfig.own_test``)."""
 
 import numpy as np
 import pytest
+import torch
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
@@ -86,3 +87,53 @@ def test_a_neighbour_that_slipped_does_not_take_its_static_neighbours_with_it(ow
         assert np.ptp(out["poses_c2w"][:, 0, 3]) > 0.3  # the scene was solved, not degenerate
     else:  # the appendix's vote alone: the slipped representatives take neighbours with them
         assert dyn[others].sum() >= 20
+
+
+def _slip_late(tracks: np.ndarray, who: np.ndarray, frames: int) -> None:
+    """The tracks ``who`` leave their point in their last ``frames`` frames (6 px a frame to the right)."""
+    tracks[who, T - frames:, 0] += 6.0 * np.arange(1, frames + 1)
+
+
+def test_the_percentile_test_lets_a_static_track_leave_its_point_in_a_quarter_of_its_frames():
+    """``test_stat``: tracks on the wall that slip off in 2 of their 8 frames fail the paper's max test and pass
+    p75; tracks that slip in 4 of 8, or move throughout, fail both."""
+    from trackingworld.optim import lie
+
+    tr, prior, poses, *_ = _wall_scene()
+    who = np.arange(1000, 1200)
+    uv = tr.tracks[who].copy()
+    _slip_late(uv, np.arange(0, 50), 2)
+    _slip_late(uv, np.arange(50, 100), 4)
+    uv[100:150, 1:, 0] += 3.0 * np.arange(1, T)
+    R, t = lie.c2w_to_w2c(poses, torch.float32, "cpu")
+    x, y = np.clip(np.rint(uv[..., 0]), 0, W - 1).astype(int), np.clip(np.rint(uv[..., 1]), 0, H - 1).astype(int)
+    D = prior[np.arange(T)[None], y, x]
+    vis = tr.visible[who]
+    for stat, expect in (("max", [False, False, False, True]), ("p75", [True, False, False, True])):
+        cfg = OptimConfig(verbose=False, test_stat=stat)
+        still = world.fits_static(uv, D, vis, K, R, t, cfg, torch.float32, "cpu")[0]
+        got = [still[a:b][vis[a:b].all(1)].all() if e else not still[a:b][vis[a:b].all(1)].any()
+               for (a, b), e in zip([(0, 50), (50, 100), (100, 150), (150, 200)], expect, strict=True)]
+        assert all(got), (stat, got)
+
+
+def test_a_static_tracks_observations_off_its_point_are_left_out_and_not_visible():
+    """``static_outliers``: tracks on the wall (not stage-2 representatives) that slip off in their last 2
+    frames end static, with exactly those frames not visible in the result; with the option off they stay
+    visible."""
+    tr, prior, poses, slipped, mover, others = _wall_scene()
+    late = others[:12]
+    tracks = tr.tracks.copy()
+    _slip_late(tracks, late, 2)
+    vis = (tracks[..., 0] >= 0) & (tracks[..., 0] <= W - 1)
+    tr = TrackResult(tracks, vis & tr.visible, tr.confidence, tr.queries)
+    for on in (True, False):
+        cfg = OptimConfig(verbose=False, static_outliers=on)
+        out = world.optimise(tr, prior, np.zeros(prior.shape, bool), K, cfg, {})
+        assert not out["is_dynamic"][late].any()
+        seen = out["visible"][late]
+        if on:
+            assert not seen[:, -2:].any() and seen[:, :-2].all()
+            assert out["info"]["static_outliers"] >= 2 * len(late)
+        else:
+            np.testing.assert_array_equal(seen, tr.visible[late])

@@ -340,3 +340,37 @@ def test_upsampler_names():
     assert upsample_config("bilinear").mode == "bilinear"
     with pytest.raises(InputError, match="unknown upsampler"):
         upsample_config("nearest")
+
+
+def test_flow_varies_marks_the_band_around_a_motion_boundary_only():
+    from trackingworld.tracking2d.flow_tracker import flow_varies
+
+    flow = np.zeros((1, 40, 60, 2), np.float32)
+    flow[0, :, 30:, 0] = 3.0  # the right half moves 3 px
+    v = flow_varies(flow, 0.5, 6)[0]
+    assert v[:, 24:36].all() and not v[:, :24].any() and not v[:, 36:].any()
+    flow[0, :, 30:, 0] = 0.3  # below the tolerance: nowhere
+    assert not flow_varies(flow, 0.5, 6).any()
+
+
+def test_a_step_that_leaves_its_like_moving_neighbours_is_dragged():
+    """A background grid stepping 1 px right and an object stepping 4 px, each with its own past velocity: the
+    background point whose step follows the object halfway is the only one flagged; the object's points, whose
+    like-moving neighbours are on the object, are not."""
+    ys, xs = np.mgrid[0:60:3, 0:90:3]
+    p = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+    obj = p[:, 0] >= 60
+    step = np.where(obj[:, None], [4.0, 0.0], [1.0, 0.0]).astype(np.float32)
+    va = step.copy()
+    dragged = np.flatnonzero(~obj & (p[:, 0] == 57) & (p[:, 1] == 30))[0]
+    nudged = np.flatnonzero(~obj & (p[:, 0] == 30) & (p[:, 1] == 30))[0]
+    step[dragged] = [2.5, 0.0]
+    step[nudged] = [1.05, 0.0]
+    tracker = FlowTracker(FlowTrackerConfig(drag_abs_px=0.5, drag_rel=0.1))
+    every = np.ones(len(p), bool)
+    out = tracker._dragged(p, va, step, every, every, 8, 24.0)
+    assert np.flatnonzero(out).tolist() == [dragged]
+    # only the points asked about are tested
+    ask = np.zeros(len(p), bool)
+    ask[nudged] = True
+    assert not tracker._dragged(p, va, step, every, ask, 8, 24.0).any()

@@ -55,6 +55,7 @@ class Track2DConfig:
     upsampler: str = "convex"
     flow_preset: str = "fine"
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
+    flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
 
 
 @dataclass
@@ -76,6 +77,10 @@ class OptimConfig:
     lambda_asap: float = 5.0
     epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object
     offset_stat: str = "max"  # max (paper) | pNN, a percentile: statistic of ||O(i,t)|| over the visible frames
+    # (not in the paper) the statistic of the as-static test of the tracks outside the bundle adjustment (poses
+    # held): p75 lets a quarter of a static track's frames leave its point (its 2D track slipped onto an occluder
+    # or was found again off its point); those observations are then left out (static_outliers). max: the paper
+    test_stat: str = "p75"
     # focal length refined in stage 2 (stage2.refine_focal): auto = when the intrinsics were not given | on | off
     refine_focal: str = "auto"
     # movers the masks missed that slide along the epipolar lines (a static point at another depth explains
@@ -136,6 +141,7 @@ class OptimConfig:
     # verdict of the tested tracks nearest them, those inside the masks included (not in the paper; False: the
     # vote alone, mask-dynamic tracks seen once stay dynamic)
     own_test: bool = True
+    static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.
     # cell_cap applies to the control tracks' observations too (per frame and dynamic_cell cell).

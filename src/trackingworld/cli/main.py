@@ -162,6 +162,10 @@ def _track_args(p) -> None:
     g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])
     g.add_argument("--flow-skip-stride", type=int, default=4,
                    help="flows this many frames apart re-place the points chained one frame at a time (0: off)")
+    g.add_argument("--flow-drag-px", type=float, default=0.5, metavar="PX",
+                   help="a step near a motion boundary that leaves the median step of the neighbours that moved like "
+                        "the point by more than PX + 10%% is not observed: a point dragged along by an object passing "
+                        "it (0: off)")
 
 
 def _track_config(a):
@@ -172,7 +176,7 @@ def _track_config(a):
         grid_stride=a.grid_stride,
         query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
         min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset,
-        flow_skip_stride=a.flow_skip_stride)
+        flow_skip_stride=a.flow_skip_stride, flow_drag_px=a.flow_drag_px)
 
 
 def cmd_track2d(a) -> int:
@@ -216,6 +220,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--offset-stat", type=_offset_stat, default=d.offset_stat,
                    help="statistic of a track's offset norms compared with epsilon: max (the paper) or pNN, a "
                         "percentile (p50 with --epsilon 0.05: fewer drifting static tracks called moving)")
+    g.add_argument("--test-stat", type=_offset_stat, default=d.test_stat,
+                   help="(not in the paper) the same statistic in the as-static test of the tracks outside the bundle "
+                        "adjustment, poses held (default p75: a static track may leave its point in a quarter of its "
+                        "frames, which are then left out, see --static-outliers; max: the paper)")
     g.add_argument("--refine-focal", default=d.refine_focal, choices=["auto", "on", "off"],
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
     g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
@@ -238,6 +246,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--static-outliers", action=argparse.BooleanOptionalAction, default=d.static_outliers,
+                   help="(not in the paper) a static track's observations whose offset reaches epsilon are left out "
+                        "of its point's final fit and marked not visible (frames where its 2D track left the point)")
     g.add_argument("--own-test", action=argparse.BooleanOptionalAction, default=d.own_test,
                    help="a static track its optimised neighbours call moving is moving only if its own as-static "
                         "test fails too; a track seen once takes its tested neighbours' verdict (default); "
@@ -264,6 +275,7 @@ def _optim_config(a):
 
     return OptimConfig(
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
+        test_stat=a.test_stat, static_outliers=a.static_outliers,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
         carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,

@@ -87,7 +87,7 @@ def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[n
     _, r_uv, _ = stage2.residuals(R, t, X, pc)
     worst = torch.zeros(pc.n_points, dtype=r_uv.dtype, device=r_uv.device)
     worst.scatter_reduce_(0, pc.pt, r_uv.norm(dim=-1), reduce="amax")
-    return ~_moving(R, t, X, pc, cfg), X.cpu().numpy(), worst.cpu().numpy()
+    return ~_moving(R, t, X, pc, replace(cfg, offset_stat=cfg.test_stat)), X.cpu().numpy(), worst.cpu().numpy()
 
 
 def _chunks(tracks, vis, frames: int):
@@ -104,6 +104,22 @@ def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
     out = [fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device)
            for c, vc in _chunks(tracks, vis, cfg.test_frames)]
     return tuple(np.concatenate(x) for x in zip(*out, strict=True))
+
+
+def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) -> np.ndarray:
+    """``[n,T]`` bool: the visible observations of the static ``tracks`` [n] (indices) whose offset from their
+    point ``xyz[tracks, 0]`` (world metres) reaches epsilon with the poses (R, t world-to-camera) held: frames
+    where the 2D track left its point (slipped onto an occluder, found again off its point). In float32 and in
+    chunks of FIT_CHUNK tracks."""
+    out = np.zeros((len(tracks), vis.shape[1]), bool)
+    for a in range(0, len(tracks), FIT_CHUNK):
+        c = tracks[a:a + FIT_CHUNK]
+        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
+        X = torch.as_tensor(xyz[c, 0], dtype=torch.float32, device=pc.uv.device)
+        far = (stage2.offset_norms(R.float(), t.float(), X, pc) >= cfg.epsilon).cpu().numpy()
+        rows, cols = np.nonzero(vis[c])  # the problem's observations, track-major, frames ascending
+        out[a + rows[far], cols[far]] = True
+    return out
 
 
 def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int) -> np.ndarray:
@@ -329,6 +345,17 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[once] = vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, cfg.idw_k)
             info["dynamic"] = int(dynamic.sum())
 
+    if cfg.static_outliers and p.offsets:
+        with tm("static_outliers"):
+            # (not in the paper) a static track's observations off its point by epsilon or more are not of its
+            # point (its 2D track slipped onto an occluder, or was found again off the point after a gap): they
+            # are left out of the refit and of the video depth, and returned as not visible (query frames kept)
+            still = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+            off = static_outliers(still, uv, Dfit, vis, xyz, K, R, t, cfg, device)
+            off[np.arange(len(still)), qf[still]] = False
+            vis = vis.copy()
+            vis[still] &= ~off
+            info["static_outliers"] = int(off.sum())
     if cfg.static_refit_dc > 0 and not cfg.no_depth_consistency:
         with tm("static_refit"):
             # every static point again, poses held, its depth now held to the field-corrected prior: a track
@@ -367,7 +394,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         n, t, ratio = reference_ratios(None, uv, vis, xyz, D, poses)
         depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
-            "info": info}
+            "visible": vis, "info": info}
 
 
 def corrected_prior(D, uv, vis, fields) -> np.ndarray:
@@ -578,7 +605,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     qt = tr.queries[:, 0].astype(np.int32)
     depth = resize_stack(out["depth"].astype(np.float32), W, H, cv2.INTER_LINEAR)
     return Result(
-        tracks_2d=inp.to_input_pixels(tr.tracks), visible=tr.visible, tracks_3d=out["xyz"], query_frame=qt,
+        tracks_2d=inp.to_input_pixels(tr.tracks), visible=out["visible"], tracks_3d=out["xyz"], query_frame=qt,
         is_dynamic=out["is_dynamic"], colors=sample_colors(inp.frames, tr.queries), poses_c2w=out["poses_c2w"],
         intrinsics=K_in, depth=depth,
     )

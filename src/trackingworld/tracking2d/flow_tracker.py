@@ -19,6 +19,12 @@ Drift: every chained step adds a little error (on a 120-frame synthetic scene 0.
 previous one is placed by the longer flow from its position there, so that over a long span the error of one
 long step adds up once per ``skip_stride`` frames instead of every frame (0.47 px after 60 frames at stride 4).
 
+Smoothed flow drags a background point along with an object that passes close by, and the way back agrees, so
+the forward-backward check passes. Where the flow varies within ``drag_window_px`` (motion boundaries), a step
+that leaves the median step of the neighbours that moved like the point by more than ``drag_abs_px`` +
+``drag_rel`` of it is not observed; the point is carried through it like any gap. On the 32-frame ``default``
+scene (seed 0) the static tracks that stray more than 2 px from their point fall from 17.6% to 15.1%.
+
 Chained flow also lets a point slide slowly off its surface point, which no single step's checks see. A point
 whose colour has moved more than ``max_query_colour_diff`` from its colour in the query frame is lost from
 there on; in dense tracking the pixels it covered become uncovered and get a fresh track from that frame."""
@@ -63,6 +69,11 @@ class FlowTrackerConfig:
     # flows over this many frames between its multiples re-place the points observed throughout (drift); 0: off
     skip_stride: int = 4
     skip_max_shift_px: float = 2.0  # ... unless they move a point further than this from its chained position
+    # an observed step that leaves the median step of the neighbours that moved like the point by more than
+    # abs + rel * |step| px is not observed (a point dragged along by the flow of an object passing it); 0: off
+    drag_abs_px: float = 0.5
+    drag_rel: float = 0.1
+    drag_window_px: int = 6  # ... tested only where a flow component varies by drag_abs_px within this many px
     verbose: bool = False
 
 
@@ -128,6 +139,19 @@ class _Video:
     blur: np.ndarray  # [T,H,W,3] uint8
     skip_fwd: np.ndarray  # [J,H,W,2]: flow from frame j s to (j + 1) s (s = skip_stride; J = 0 when off)
     skip_bwd: np.ndarray  # [J,H,W,2]: from (j + 1) s back to j s
+    varied_fwd: np.ndarray | None = None  # [T-1,H,W] bool: the forward flow varies nearby (drag check); None: off
+    varied_bwd: np.ndarray | None = None
+
+
+def flow_varies(flows: np.ndarray, tol: float, radius: int) -> np.ndarray:
+    """``[n,H,W]`` bool: where a component of ``flows [n,H,W,2]`` ranges over more than ``tol`` px within the
+    square of half-side ``radius`` px (grey-level dilation minus erosion): near motion boundaries and in
+    strongly varying flow, the only places a point can be dragged off its neighbours' motion."""
+    box = np.ones((2 * radius + 1,) * 2, np.uint8)
+    out = np.zeros(flows.shape[:3], bool)
+    for j, f in enumerate(flows):
+        out[j] = (cv2.dilate(f, box) - cv2.erode(f, box) > tol).any(-1)
+    return out
 
 
 def pick_neighbours(p: np.ndarray, vel: np.ndarray, who: np.ndarray, cand: np.ndarray, k: int, radius: float,
@@ -174,6 +198,9 @@ class FlowTracker:
                 skip_fwd = skip_bwd = np.zeros((0,) + fwd.shape[1:], np.float32)
             self._video = _Video(id(frames), fwd, bwd, gray,
                                  np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in frames]), skip_fwd, skip_bwd)
+            if c.drag_abs_px > 0:
+                self._video.varied_fwd = flow_varies(fwd, c.drag_abs_px, c.drag_window_px)
+                self._video.varied_bwd = flow_varies(bwd, c.drag_abs_px, c.drag_window_px)
         return self._video
 
     def flows(self, frames: np.ndarray):
@@ -205,6 +232,26 @@ class FlowTracker:
         q = p + fa
         err = np.linalg.norm(fa + sample_flow(flow_b, q), axis=1)
         return fa, q, err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)
+
+    def _dragged(self, p: np.ndarray, va: np.ndarray, fa: np.ndarray, obs: np.ndarray, test: np.ndarray, k: int,
+                 radius: float) -> np.ndarray:
+        """[M] bool: of the points ``test``, those whose step ``fa [M,2]`` leaves the median step of up to ``k``
+        observed points (``obs``) within ``radius`` px that moved like them (smoothed velocity ``va``)."""
+        c = self.config
+        out = np.zeros(len(p), bool)
+        who = np.flatnonzero(test)
+        cand = np.flatnonzero(obs)
+        if not len(who) or len(cand) < 2:
+            return out
+        cand = cand[:: max(1, -(-len(cand) // c.max_candidates))]
+        nb = pick_neighbours(p, va, who, cand, k, radius, c.neighbour_vel_abs_px, c.neighbour_vel_rel)
+        nb = np.where(nb == who[:, None], -1, nb)
+        has = nb >= 0
+        enough = has.sum(1) >= max(c.min_neighbours, 3)
+        med = np.nanmedian(np.where(has[..., None], fa[np.maximum(nb, 0)], np.nan)[enough], axis=1)
+        d = np.linalg.norm(fa[who[enough]] - med, axis=1)
+        out[who[enough]] = d > c.drag_abs_px + c.drag_rel * np.linalg.norm(med, axis=1)
+        return out
 
     def _propagate(self, video: _Video, p0: np.ndarray, t0: int, direction: int, tracks, vis, sel) -> None:
         """Track ``p0 [M,2]`` from frame ``t0`` one way in time; writes the first ``len(sel)`` points into
@@ -243,6 +290,11 @@ class FlowTracker:
                 ok &= np.abs(ca - cb).max(1) < c.max_colour_diff
             moved = np.zeros(M, bool)  # points whose position in the next frame is not the flow's
             in_gap = gap > 0
+            if c.drag_abs_px > 0 and t != t0:
+                varied = (video.varied_fwd if direction == 1 else video.varied_bwd)[k]
+                xi = np.clip(np.rint(p[:, 0]).astype(np.int64), 0, W - 1)
+                yi = np.clip(np.rint(p[:, 1]).astype(np.int64), 0, H - 1)
+                ok &= ~self._dragged(p, va, fa, ok & ~in_gap, ok & ~in_gap & varied[yi, xi], K, radius)
             carriers = ok & ~in_gap  # observed in both frames
             new = ~ok & ~in_gap & ~lost  # points whose gap begins now
             if new.any():
