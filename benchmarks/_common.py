@@ -18,8 +18,8 @@ from trackingworld.pipeline.run import run
 from trackingworld.pipeline.tracks import track_video
 
 # the optimisation's stages in timings.json (what "optimisation [s]" adds up)
-OPT_STAGES = ("labels", "stage1", "stage2", "prior_field", "classify", "rebuild_static", "depth_movers", "static_refit",
-              "stage3", "video_depth")
+OPT_STAGES = ("labels", "stage1", "stage2", "prior_field", "classify", "rebuild_static", "depth_movers",
+              "static_outliers", "static_refit", "stage3", "video_depth")
 
 
 def scratch_dir(prefix: str, keep: bool = False) -> Path:

@@ -6,7 +6,7 @@ Keys of ``result.npz`` (N tracks, T frames, H x W input resolution):
 key            dtype    shape        meaning
 =============  =======  ===========  ==================================================================
 tracks_2d      float32  [N,T,2]      pixel x, y at the input resolution (also where not visible)
-visible        bool     [N,T]        observed in that frame
+visible        bool     [N,T]        observed in that frame (a static track's frames off its 3D point: not visible)
 tracks_3d      float32  [N,T,3]      world coordinates, metres (estimate through occlusion too)
 query_frame    int32    [N]          frame the track was started from
 is_dynamic     bool     [N]          track belongs to a moving object
