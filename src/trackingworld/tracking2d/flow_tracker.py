@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from trackingworld.geometry import nearest_pixel
 from trackingworld.progress import Progress
 from trackingworld.tracking2d.base import TrackResult
 
@@ -233,6 +234,14 @@ class FlowTracker:
         err = np.linalg.norm(fa + sample_flow(flow_b, q), axis=1)
         return fa, q, err < c.fb_abs_px + c.fb_rel * np.linalg.norm(fa, axis=1)
 
+    def _neighbours(self, p: np.ndarray, va: np.ndarray, who: np.ndarray, cand: np.ndarray, k: int,
+                    radius: float) -> np.ndarray:
+        """:func:`pick_neighbours` of the points ``who`` among ``cand`` evenly thinned to at most
+        ``max_candidates`` (a kd-tree is built every step), with the config's velocity tolerance."""
+        c = self.config
+        cand = cand[:: max(1, -(-len(cand) // c.max_candidates))]
+        return pick_neighbours(p, va, who, cand, k, radius, c.neighbour_vel_abs_px, c.neighbour_vel_rel)
+
     def _dragged(self, p: np.ndarray, va: np.ndarray, fa: np.ndarray, obs: np.ndarray, test: np.ndarray, k: int,
                  radius: float) -> np.ndarray:
         """[M] bool: of the points ``test``, those whose step ``fa [M,2]`` leaves the median step of up to ``k``
@@ -243,8 +252,7 @@ class FlowTracker:
         cand = np.flatnonzero(obs)
         if not len(who) or len(cand) < 2:
             return out
-        cand = cand[:: max(1, -(-len(cand) // c.max_candidates))]
-        nb = pick_neighbours(p, va, who, cand, k, radius, c.neighbour_vel_abs_px, c.neighbour_vel_rel)
+        nb = self._neighbours(p, va, who, cand, k, radius)
         nb = np.where(nb == who[:, None], -1, nb)
         has = nb >= 0
         enough = has.sum(1) >= max(c.min_neighbours, 3)
@@ -292,17 +300,13 @@ class FlowTracker:
             in_gap = gap > 0
             if c.drag_abs_px > 0 and t != t0:
                 varied = (video.varied_fwd if direction == 1 else video.varied_bwd)[k]
-                xi = np.clip(np.rint(p[:, 0]).astype(np.int64), 0, W - 1)
-                yi = np.clip(np.rint(p[:, 1]).astype(np.int64), 0, H - 1)
+                xi, yi = nearest_pixel(p, W, H)
                 ok &= ~self._dragged(p, va, fa, ok & ~in_gap, ok & ~in_gap & varied[yi, xi], K, radius)
             carriers = ok & ~in_gap  # observed in both frames
             new = ~ok & ~in_gap & ~lost  # points whose gap begins now
             if new.any():
                 who = np.flatnonzero(new)
-                cand = np.flatnonzero(carriers)
-                cand = cand[:: max(1, -(-len(cand) // c.max_candidates))]  # thinned: a kd-tree is built every step
-                nbr[who] = pick_neighbours(p, va, who, cand, K, radius,
-                                           c.neighbour_vel_abs_px, c.neighbour_vel_rel)
+                nbr[who] = self._neighbours(p, va, who, np.flatnonzero(carriers), K, radius)
                 nbr_ref[who] = p[np.maximum(nbr[who], 0)]
                 p_ref[who] = p[who]
             # prediction through a gap: the median displacement of the neighbours observed now
