@@ -47,6 +47,7 @@ ROWS = {
     "stage-3 target = raw prior (paper)": ("trackingworld", {"dc_target": "prior"}, ""),
     "stage-3 target = per-frame median ratio": ("trackingworld", {"dc_target": "frame"}, ""),
     "stage-3 target = local ratio": ("trackingworld", {"dc_target": "local"}, ""),
+    "stage-3 target field fitted frame by frame": ("trackingworld", {"dc_field_temporal": 0.0}, ""),
     "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, ""),
     "mask-dynamic test by offsets alone": ("trackingworld", {"mask_dynamic_px": 0.0}, ""),
     "no depth-discrepancy mover test (paper)": ("trackingworld", {"depth_mover_log": 0.0}, ""),

@@ -490,7 +490,7 @@ def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cann
     target = partial(world.stage3_target, "field", xyz, uv, vis, dyn=dyn, static=static, poses=c2w, K=K,
                      shape=(240, 320))
     assert np.allclose(target(D=D), target(D=D_border))
-    no_margin = ((8, 6), 0.01, 0.0)
+    no_margin = ((8, 6), 0.01, 0.0, 3.0)
     shift = np.abs(np.log(target(D=D_border, field=no_margin) / target(D=D, field=no_margin)))
     assert (d_near < 3).sum() > 50 and np.median(shift) > 0.005
 

@@ -37,3 +37,53 @@ def test_the_field_of_no_samples_is_zero_and_float32_pixels_at_the_border_are_in
     uv = np.array([[W - 1, H - 1], [0, 0], [W / 2, H / 2]], np.float32)  # the corner: a float32 rounding case
     g = fit_log_field(uv, np.array([0.1, 0.1, 0.1]), (H, W), cells=(2, 2))
     assert np.allclose(g(uv), 0.1)
+
+
+def test_fields_fitted_together_see_under_a_moving_hole_through_their_neighbours_in_time():
+    """A warp drifting slowly over 12 frames, each frame with its own scale; a hole (a moving object) slides
+    across the image. With the temporal coupling the field inside each frame's hole is closer to the warp than
+    the per-frame fit's, each frame keeps its own level, and weight 0 is the per-frame fit exactly."""
+    from trackingworld.optim.ratio_field import fit_log_fields
+
+    rng = np.random.default_rng(3)
+    T = 12
+    samples, holes, truth = [], [], []
+    for t in range(T):
+        uv = rng.uniform([0, 0], [W - 1, H - 1], (1500, 2))
+        cx = 60 + 17 * t
+        hole = (np.abs(uv[:, 0] - cx) < 55) & (np.abs(uv[:, 1] - 120) < 60)
+        level = 0.1 * rng.standard_normal()  # the prior's per-frame scale
+        f_t = lambda q, t=t, level=level: warp(q + np.array([2.0 * t, 0.0])) + level  # noqa: E731
+        uv = uv[~hole]
+        samples.append((uv, f_t(uv) + 0.005 * rng.standard_normal(len(uv))))
+        q = np.stack(np.meshgrid(np.arange(cx - 45, cx + 46, 5), np.arange(70, 171, 5)), -1).reshape(-1, 2)
+        holes.append(q.astype(float))
+        truth.append(f_t(q.astype(float)))
+    alone = fit_log_fields(samples, (H, W), temporal=0.0)
+    together = fit_log_fields(samples, (H, W), temporal=3.0)
+    err_alone = np.mean([np.median(np.abs(f(q) - g)) for f, q, g in zip(alone, holes, truth, strict=True)])
+    err_together = np.mean([np.median(np.abs(f(q) - g)) for f, q, g in zip(together, holes, truth, strict=True)])
+    assert err_together < 0.7 * err_alone
+    for f, (uv, val) in zip(together, samples, strict=True):  # each frame's level is its own
+        assert abs(np.median(f(uv) - val)) < 0.01
+    single = fit_log_field(*samples[4], (H, W))
+    assert np.allclose(alone[4].values, single.values) and alone[4].offset == single.offset
+    assert fit_log_fields([None, samples[0], None], (H, W), temporal=3.0)[0] is None
+
+
+def test_block_tridiagonal_solve_matches_a_dense_solve():
+    from trackingworld.optim.ratio_field import _block_tridiagonal_solve
+
+    rng = np.random.default_rng(0)
+    T, m = 5, 4
+    off = rng.normal(size=(m, m))
+    off = -(off @ off.T) * 0.1
+    diag = np.stack([np.eye(m) * 5 + 0.1 * (a @ a.T) for a in rng.normal(size=(T, m, m))])
+    rhs = rng.normal(size=(T, m))
+    A = np.zeros((T * m, T * m))
+    for t in range(T):
+        A[t * m:(t + 1) * m, t * m:(t + 1) * m] = diag[t]
+        if t:
+            A[t * m:(t + 1) * m, (t - 1) * m:t * m] = off
+            A[(t - 1) * m:t * m, t * m:(t + 1) * m] = off
+    assert np.allclose(_block_tridiagonal_solve(diag, off, rhs).ravel(), np.linalg.solve(A, rhs.ravel()))

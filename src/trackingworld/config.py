@@ -104,6 +104,10 @@ class OptimConfig:
     dc_field_cells: tuple[int, int] = (8, 6)
     dc_field_smooth: float = 0.01
     dc_field_margin_px: float = 4.0
+    # ... and the weight that holds each frame's field shape near the previous frame's (ratio_field.fit_log_fields;
+    # 0: every frame on its own). Not in the paper: the prior's warp drifts slowly, and under a moving object
+    # a frame's own static tracks cannot see it while its neighbours in time can (stage 3's target only)
+    dc_field_temporal: float = 3.0
     # hidden frames of dynamic tracks: carried by the motion of this many nearest neighbours visible there
     # (optim.hidden; 0: the position at the nearest visible frame is held, as the authors' code does)
     carry_k: int = 16

@@ -235,6 +235,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
                         "z / prior median, that ratio propagated from the nearest static tracks, or a robust "
                         "smooth field of it over the image (default)")
+    g.add_argument("--dc-field-temporal", type=float, default=d.dc_field_temporal, metavar="W",
+                   help="with --dc-target field: hold each frame's field near its neighbours' in time with this "
+                        "weight (0: each frame on its own, as before)")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
                    help="hidden frames of dynamic tracks follow this many neighbours' motion (0: held)")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
@@ -278,7 +281,8 @@ def _optim_config(a):
         test_stat=a.test_stat, static_outliers=a.static_outliers,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
-        carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px, static_rebuild=a.static_rebuild,
+        dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px,
+        static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         own_test=a.own_test, prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,

@@ -112,3 +112,70 @@ def fit_log_field(uv: np.ndarray, values: np.ndarray, shape: tuple[int, int], ce
         r = (x[idx] * w).sum(1) - y
         robust = 1.0 / (1.0 + (r / scale) ** 2)
     return LogField(x, offset, shape, cells)
+
+
+def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int] = (8, 6), smooth: float = 0.01,
+                   temporal: float = 0.0, scale: float = 0.02, iters: int = 4) -> list:
+    """Fields of a sequence of frames fitted together: ``samples`` per frame ``(uv [R,2], values [R])`` or None
+    (no samples: None out). Each frame is :func:`fit_log_field`'s problem about its own median; ``temporal`` > 0
+    adds a penalty on the change of each frame's field shape from the previous frame's (node differences less
+    their mean, so each frame keeps its own level: the prior's per-frame scale), weighted like ``smooth`` (per
+    sample of the average frame per node). A node that no sample of its frame reaches then takes its value from
+    the neighbouring frames, where it may be seen, before its spatial neighbours. The system is block
+    tridiagonal in time and is solved exactly by block elimination (T solves of the nodes' size)."""
+    T = len(samples)
+    if temporal <= 0:
+        return [None if s is None else fit_log_field(s[0], s[1], shape, cells, smooth, scale, iters) for s in samples]
+    m = (cells[0] + 1) * (cells[1] + 1)
+    LtL = _difference_operator(cells)
+    P = np.eye(m) - 1.0 / m
+    frames = []  # per frame: (idx, w, y, rows, penalty) or None
+    counts = [len(s[1]) for s in samples if s is not None and len(s[1])]
+    if not counts:
+        return [None] * T
+    tau = temporal * float(np.mean(counts)) / m * P
+    offsets = np.zeros(T)
+    for t, s in enumerate(samples):
+        if s is None or not len(s[1]):
+            frames.append(None)
+            continue
+        values = np.asarray(s[1], np.float64)
+        offsets[t] = float(np.median(values))
+        idx, w = _bilinear(s[0], shape, cells)
+        rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
+        frames.append((idx, w, values - offsets[t], rows, smooth * len(values) / m * LtL))
+    robust = [None if f is None else np.ones(len(f[2])) for f in frames]
+    x = np.zeros((T, m))
+    for _ in range(max(iters, 1)):
+        diag, rhs = np.empty((T, m, m)), np.zeros((T, m))
+        for t, f in enumerate(frames):
+            n_links = (t > 0) + (t < T - 1)
+            diag[t] = 1e-9 * np.eye(m) + n_links * tau
+            if f is not None:
+                idx, w, y, rows, pen = f
+                wr = w * robust[t][:, None]
+                diag[t] += np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m) + pen
+                rhs[t] = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
+        x = _block_tridiagonal_solve(diag, -tau, rhs)
+        for t, f in enumerate(frames):
+            if f is not None:
+                r = (x[t][f[0]] * f[1]).sum(1) - f[2]
+                robust[t] = 1.0 / (1.0 + (r / scale) ** 2)
+    return [None if f is None else LogField(x[t], offsets[t], shape, cells) for t, f in enumerate(frames)]
+
+
+def _block_tridiagonal_solve(diag: np.ndarray, off: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve the symmetric block-tridiagonal system with blocks ``diag [T,m,m]`` on the diagonal and the same
+    ``off [m,m]`` (symmetric) above and below it, for ``rhs [T,m]`` (block Thomas elimination)."""
+    T = len(diag)
+    d = diag.copy()
+    b = rhs.copy()
+    for t in range(1, T):
+        g = np.linalg.solve(d[t - 1], np.concatenate([off, b[t - 1][:, None]], 1))  # d^-1 [off | b]
+        d[t] -= off @ g[:, :-1]
+        b[t] -= off @ g[:, -1]
+    x = np.zeros_like(rhs)
+    x[-1] = np.linalg.solve(d[-1], b[-1])
+    for t in range(T - 2, -1, -1):
+        x[t] = np.linalg.solve(d[t], b[t] - off @ x[t + 1])
+    return x

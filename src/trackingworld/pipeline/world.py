@@ -28,7 +28,7 @@ from trackingworld.optim.densify import (
 from trackingworld.optim.depth_movers import depth_movers, less_fields, log_depth_ratios
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
-from trackingworld.optim.ratio_field import fit_log_field
+from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
@@ -369,7 +369,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
-                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px),
+                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px,
+                                                 cfg.dc_field_temporal),
                                thinned)
         if len(dyn):
             ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
@@ -434,14 +435,14 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float] | None = None, refs=None) -> np.ndarray:
+                  field: tuple[tuple[int, int], float, float, float] | None = None, refs=None) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
     robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
     gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's; None: OptimConfig's defaults), which needs the image ``shape`` (h, w)); ``refs``:
-    see :func:`static_fields`."""
+    blurred with the object's, temporal coupling of the frames' fields; None: OptimConfig's defaults), which
+    needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
     target = D[dyn]
     if mode == "prior":
         return target
@@ -450,11 +451,12 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
     if mode == "field" and shape is None:
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
     if field is None:
-        field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px)
-    cells, smooth, margin = field
+        field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px,
+                 OptimConfig.dc_field_temporal)
+    cells, smooth, margin, temporal = field
     vis_t = np.ascontiguousarray(vis[dyn].T)
     if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs)
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs, temporal)
         for tt, f in enumerate(fields):
             w = np.flatnonzero(vis_t[tt])
             if f is not None and len(w):
@@ -476,12 +478,14 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
 
 
 def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells: tuple[int, int], smooth: float,
-                  near=None, margin: float = 0.0, refs=None) -> list:
+                  near=None, margin: float = 0.0, refs=None, temporal: float = 0.0) -> list:
     """Per frame, the robust smooth field (``optim.ratio_field.LogField``, log units) of the ratio camera z /
     prior of the ``static`` tracks' thinned observations (None for a frame without any). ``near`` (track
     indices) with ``margin`` px: the static observations this close to one of theirs visible in the frame are
     left out while at least MIN_FIELD_SAMPLES remain. ``refs``: the thinned observations of a superset of
-    ``static`` already made (``reference_ratios``), kept where their track is in ``static``."""
+    ``static`` already made (``reference_ratios``), kept where their track is in ``static``. ``temporal`` > 0:
+    the frames' fields are fitted together, each one's shape held near its neighbours' in time
+    (``ratio_field.fit_log_fields``)."""
     if refs is None:
         n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     else:
@@ -502,8 +506,8 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
             close = cKDTree(uv[near[w], tt]).query(ref_uv, k=1, workers=-1)[0] <= margin
             if (~close).sum() >= MIN_FIELD_SAMPLES:
                 ref_uv, ref_ratio = ref_uv[~close], ref_ratio[~close]
-        out.append(fit_log_field(ref_uv, np.log(np.maximum(ref_ratio, 1e-6)), shape, cells, smooth))
-    return out
+        out.append((ref_uv, np.log(np.maximum(ref_ratio, 1e-6))))
+    return fit_log_fields(out, shape, cells, smooth, temporal)
 
 
 def _depth_movers(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig):
