@@ -91,49 +91,28 @@ def fit_log_field(uv: np.ndarray, values: np.ndarray, shape: tuple[int, int], ce
     ``smooth``: weight of the node differences per sample per node (independent of how many samples there
     are); ``scale``: the Cauchy scale of the residuals (0.02 = 2% in depth); ``iters``: reweighted solves.
     The field is fitted about the samples' median; nodes with no samples near them take their values from
-    their neighbours through the smoothness penalty. No samples: a field of zeros.
+    their neighbours through the smoothness penalty. No samples: a field of zeros. (:func:`fit_log_fields`
+    of one frame.)
     """
-    values = np.asarray(values, np.float64)
-    m = (cells[0] + 1) * (cells[1] + 1)
     if len(values) == 0:
-        return LogField(np.zeros(m), 0.0, shape, cells)
-    offset = float(np.median(values))
-    y = values - offset
-    idx, w = _bilinear(uv, shape, cells)
-    rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
-    penalty = smooth * len(values) / m * _difference_operator(cells) + 1e-9 * np.eye(m)
-    robust = np.ones(len(values))
-    x = np.zeros(m)
-    for _ in range(max(iters, 1)):
-        wr = w * robust[:, None]
-        A = np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m)
-        b = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
-        x = np.linalg.solve(A + penalty, b)
-        r = (x[idx] * w).sum(1) - y
-        robust = 1.0 / (1.0 + (r / scale) ** 2)
-    return LogField(x, offset, shape, cells)
+        return LogField(np.zeros((cells[0] + 1) * (cells[1] + 1)), 0.0, shape, cells)
+    return fit_log_fields([(uv, values)], shape, cells, smooth, 0.0, scale, iters)[0]
 
 
 def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int] = (8, 6), smooth: float = 0.01,
                    temporal: float = 0.0, scale: float = 0.02, iters: int = 4) -> list:
-    """Fields of a sequence of frames fitted together: ``samples`` per frame ``(uv [R,2], values [R])`` or None
-    (no samples: None out). Each frame is :func:`fit_log_field`'s problem about its own median; ``temporal`` > 0
-    adds a penalty on the change of each frame's field shape from the previous frame's (node differences less
-    their mean, so each frame keeps its own level: the prior's per-frame scale), weighted like ``smooth`` (per
-    sample of the average frame per node). A node that no sample of its frame reaches then takes its value from
-    the neighbouring frames, where it may be seen, before its spatial neighbours. The system is block
-    tridiagonal in time and is solved exactly by block elimination (T solves of the nodes' size)."""
+    """Fields of a sequence of frames: ``samples`` per frame ``(uv [R,2], values [R])``, or None or no samples
+    (None out). Each frame is :func:`fit_log_field`'s problem about its own median; ``temporal`` > 0 fits them
+    together, with a penalty on the change of each frame's field shape from the previous frame's (node
+    differences less their mean, so each frame keeps its own level: the prior's per-frame scale), weighted like
+    ``smooth`` (per sample of the average frame per node). A node that no sample of its frame reaches then takes
+    its value from the neighbouring frames, where it may be seen, before its spatial neighbours. The system is
+    block tridiagonal in time and is solved exactly by block elimination (T solves of the nodes' size);
+    ``temporal`` 0: each frame's block alone."""
     T = len(samples)
-    if temporal <= 0:
-        return [None if s is None else fit_log_field(s[0], s[1], shape, cells, smooth, scale, iters) for s in samples]
     m = (cells[0] + 1) * (cells[1] + 1)
     LtL = _difference_operator(cells)
-    P = np.eye(m) - 1.0 / m
     frames = []  # per frame: (idx, w, y, rows, penalty) or None
-    counts = [len(s[1]) for s in samples if s is not None and len(s[1])]
-    if not counts:
-        return [None] * T
-    tau = temporal * float(np.mean(counts)) / m * P
     offsets = np.zeros(T)
     for t, s in enumerate(samples):
         if s is None or not len(s[1]):
@@ -143,20 +122,27 @@ def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int]
         offsets[t] = float(np.median(values))
         idx, w = _bilinear(s[0], shape, cells)
         rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
-        frames.append((idx, w, values - offsets[t], rows, smooth * len(values) / m * LtL))
+        frames.append((idx, w, values - offsets[t], rows, smooth * len(values) / m * LtL + 1e-9 * np.eye(m)))
+    counts = [len(f[2]) for f in frames if f is not None]
+    if not counts:
+        return [None] * T
+    tau = temporal * float(np.mean(counts)) / m * (np.eye(m) - 1.0 / m) if temporal > 0 else None
     robust = [None if f is None else np.ones(len(f[2])) for f in frames]
     x = np.zeros((T, m))
     for _ in range(max(iters, 1)):
-        diag, rhs = np.empty((T, m, m)), np.zeros((T, m))
+        diag, rhs = np.tile(1e-9 * np.eye(m), (T, 1, 1)), np.zeros((T, m))
         for t, f in enumerate(frames):
-            n_links = (t > 0) + (t < T - 1)
-            diag[t] = 1e-9 * np.eye(m) + n_links * tau
             if f is not None:
                 idx, w, y, rows, pen = f
                 wr = w * robust[t][:, None]
-                diag[t] += np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m) + pen
+                diag[t] = np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m) + pen
                 rhs[t] = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
-        x = _block_tridiagonal_solve(diag, -tau, rhs)
+        if tau is None:
+            x = np.linalg.solve(diag, rhs[..., None])[..., 0]
+        else:
+            links = (np.arange(T) > 0).astype(int) + (np.arange(T) < T - 1)  # neighbours in time
+            diag += links[:, None, None] * tau
+            x = _block_tridiagonal_solve(diag, -tau, rhs)
         for t, f in enumerate(frames):
             if f is not None:
                 r = (x[t][f[0]] * f[1]).sum(1) - f[2]
