@@ -63,3 +63,39 @@ def test_without_a_neighbour_visible_the_position_is_held():
     assert np.allclose(out[0, 2:], xyz[0, 1])
     never = carry_hidden(xyz, np.zeros((3, 5), bool))
     assert np.array_equal(never, xyz)
+
+
+def test_a_bunch_lost_together_is_carried_by_the_tracks_still_visible():
+    # a dense patch of tracks is lost from frame 4 on; its nearest neighbours are all in the patch, so only
+    # tracks farther away on the same (translating) object are visible at the hidden frames
+    rng = np.random.default_rng(2)
+    N, T = 200, 10
+    base = rng.uniform(-0.2, 0.2, size=(N, 3)) + np.array([0.0, 0.0, 4.0])
+    patch = np.linalg.norm(base[:, :2] - base[0, :2], axis=1) < 0.08
+    vel = np.array([0.04, 0.01, -0.02])
+    xyz = base[:, None] + vel * np.arange(T)[None, :, None]
+    vis = np.ones((N, T), bool)
+    vis[patch, 4:] = False
+    out = carry_hidden(np.where(vis[..., None], xyz, np.nan), vis, k=8)
+    err = np.linalg.norm(out - xyz, axis=-1)[~vis]
+    held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)[~vis]
+    assert patch.sum() >= 16  # more than k: the old rule (k nearest at s, then visible at t) found none
+    assert err.max() < 1e-9
+    assert held.mean() > 0.05
+
+
+def test_a_donor_on_another_object_beyond_reach_is_left_out():
+    # track 0 is hidden at frame 2; its object's other track is 5 cm away and still, another object 1 m away
+    # moves by 1 m: only the near donor counts
+    xyz = np.zeros((3, 3, 3))
+    xyz[1] = [0.05, 0.0, 4.0]
+    xyz[0] = [0.0, 0.0, 4.0]
+    xyz[2, :, 0] = 1.0
+    xyz[2, :, 2] = 4.0
+    xyz[2, 2, 1] = 1.0
+    vis = np.ones((3, 3), bool)
+    vis[0, 2] = False
+    out = carry_hidden(xyz, vis, k=2, reach=0.3)
+    assert np.allclose(out[0, 2], xyz[0, 1])
+    far = carry_hidden(xyz, vis, k=2, reach=2.0)  # within reach: its motion is mixed in
+    assert far[0, 2, 1] > 0.01

@@ -108,9 +108,10 @@ class OptimConfig:
     # 0: every frame on its own). Not in the paper: the prior's warp drifts slowly, and under a moving object
     # a frame's own static tracks cannot see it while its neighbours in time can (stage 3's target only)
     dc_field_temporal: float = 3.0
-    # hidden frames of dynamic tracks: carried by the motion of this many nearest neighbours visible there
-    # (optim.hidden; 0: the position at the nearest visible frame is held, as the authors' code does)
-    carry_k: int = 16
+    # hidden frames of dynamic tracks: carried by the motion of this many nearest tracks visible both there and in
+    # the track's nearest visible frame (optim.hidden; 0: the position at the nearest visible frame is held, as
+    # the authors' code does)
+    carry_k: int = 8
     # a track inside the sure-dynamic mask region is called static only when its static fit also holds in
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.

@@ -239,7 +239,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="with --dc-target field: hold each frame's field near its neighbours' in time with this "
                         "weight (0: each frame on its own, as before)")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
-                   help="hidden frames of dynamic tracks follow this many neighbours' motion (0: held)")
+                   help="hidden frames of dynamic tracks follow the motion of this many nearby tracks visible both "
+                        "there and in the track's nearest visible frame (0: held)")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
