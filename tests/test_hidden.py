@@ -32,7 +32,7 @@ def test_translation_is_carried_exactly_where_held_positions_lag():
     err = np.linalg.norm(out - xyz, axis=-1)
     held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)
     assert np.all(err[vis] == 0)
-    assert err[~vis].max() < 1e-9
+    assert err[~vis].max() < 1e-6  # float32 steps
     assert held[~vis].mean() > 0.02  # the old behaviour is visibly wrong on the same input
 
 
@@ -80,7 +80,7 @@ def test_a_bunch_lost_together_is_carried_by_the_tracks_still_visible():
     err = np.linalg.norm(out - xyz, axis=-1)[~vis]
     held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)[~vis]
     assert patch.sum() >= 16  # more than k: the old rule (k nearest at s, then visible at t) found none
-    assert err.max() < 1e-9
+    assert err.max() < 1e-6
     assert held.mean() > 0.05
 
 
@@ -99,3 +99,17 @@ def test_a_donor_on_another_object_beyond_reach_is_left_out():
     assert np.allclose(out[0, 2], xyz[0, 1])
     far = carry_hidden(xyz, vis, k=2, reach=2.0)  # within reach: its motion is mixed in
     assert far[0, 2, 1] > 0.01
+
+
+def test_gaps_between_searched_ones_take_interpolated_steps():
+    # a track lost after frame 0 of 60 on a uniformly moving object: most gaps are not searched, and each takes
+    # the step interpolated between searched ones, exact for uniform motion
+    from trackingworld.optim.hidden import searched_gaps
+
+    xyz, rng = _moving_cloud(N=40, T=60)
+    vis = np.ones((40, 60), bool)
+    vis[0, 1:] = False
+    gaps = searched_gaps(60)
+    assert gaps[0] == 1 and gaps[-1] <= 59 and len(gaps) < 40 and np.all(np.diff(gaps) > 0)
+    out = carry_hidden(xyz, vis, k=4)
+    assert np.abs(out[0] - xyz[0]).max() < 1e-5

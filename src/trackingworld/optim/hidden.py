@@ -28,21 +28,52 @@ SOFT_M = 0.01  # metres added to the donors' distances in their weights
 # approximate kNN (scipy's eps: each donor within (1 + EPS) x the exact one's distance): 25% faster on a 48-frame
 # scene, world accuracy within 0.05 of the exact search on three scenes (the weights fall off with distance)
 EPS = 1.0
+# the donors are searched at every gap (frames from the anchor) up to DENSE_GAPS, then at gaps growing by GAP_RATIO;
+# the frames between take interpolated steps. 120 frames (4.96M hidden observations, 36 of 119 gaps searched):
+# 10.7 -> 5.8 s, world accuracy 80.57 -> 80.47; four 32-48-frame scenes within 0.1 of searching every gap.
+# Sparser schedules cost more (4 then x1.41: 4.3 s but -0.7; 8 then x1.25: -0.5)
+DENSE_GAPS = 12
+GAP_RATIO = 1.1
+CHUNK = 1 << 14  # tracks per chunk of the interpolation
+
+
+def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> np.ndarray:
+    """[g] int: the gaps (frames from the anchor) at which the donors are searched: every one up to ``dense``,
+    then each about ``ratio`` times the one before, up to T - 1 (1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, ...)."""
+    out, g = list(range(1, min(dense, T - 1) + 1)), float(dense)
+    while True:
+        g = max(g * ratio, g + 1)
+        if round(g) > T - 1:
+            return np.asarray(out, np.int64)
+        out.append(int(round(g)))
 
 
 def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.3,
                  max_donors: int = MAX_DONORS) -> np.ndarray:
     """Tracks ``xyz [N,T,3]`` (world metres; only the visible frames ``vis [N,T]`` are read) with every hidden
-    frame carried by its donors' motion (module docstring: ``k`` donors, ``reach`` metres). Tracks never visible
-    are returned as given. Returns a new ``[N,T,3]`` array of xyz's dtype."""
+    frame carried by its donors' motion (module docstring: ``k`` donors, ``reach`` metres). The donors are
+    searched at the gaps of :func:`searched_gaps` from the anchor; a hidden frame in between takes the step
+    interpolated linearly between the searched frames on either side of it (the first and last frames of the
+    video are searched from every anchor; where no searched frame follows in the same run of hidden frames, the
+    step of the one before). Tracks never visible are returned as given.
+    Returns a new ``[N,T,3]`` array of xyz's dtype."""
     N, T = vis.shape
     src = nearest_visible_frame(vis)  # [N,T]
     out = np.take_along_axis(xyz, src[..., None], axis=1)  # held at the nearest visible frame, carried below
+    if T < 2:
+        return out
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]
     pos = np.ascontiguousarray(xyz.transpose(1, 0, 2), dtype=np.float64)  # [T,N,3]
     seen = vis.any(1)
+    gaps = searched_gaps(T)
+    searched = np.zeros(T, bool)
+    searched[gaps] = True
+    step = np.zeros((N, T, 3), np.float32)  # the donors' step at the searched hidden frames
+    done = np.zeros((N, T), bool)  # ... where there were donors
     for t in range(T):
         hidden = np.flatnonzero(~vis_t[t] & seen)
+        if 0 < t < T - 1:  # the first and last frames are searched from every anchor (the runs' ends)
+            hidden = hidden[searched[np.abs(t - src[hidden, t])]]
         if not len(hidden):
             continue
         anchor = src[hidden, t]
@@ -63,6 +94,29 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
             d, j = d.reshape(len(i), kk), j.reshape(len(i), kk)
             w = np.where(d <= np.maximum(reach, 2 * d[:, :1]), 1.0 / (d + SOFT_M), 0.0)
             moved = pos[t, donors] - at_s  # [m,3] each donor's motion from s to t
-            step = np.einsum("ck,ckd->cd", w, moved[j]) / w.sum(1, keepdims=True)
-            out[i, t] += step.astype(out.dtype, copy=False)
+            st = (np.einsum("ck,ckd->cd", w, moved[j]) / w.sum(1, keepdims=True)).astype(np.float32)
+            step[i, t] = st
+            done[i, t] = True
+            out[i, t] += st.astype(out.dtype, copy=False)
+    # the hidden frames between searched ones: linear in the gap between the searched frames around them
+    below = np.maximum.accumulate(np.where(searched, np.arange(T), 0))  # [T] largest searched gap <= g
+    above = np.minimum.accumulate(np.where(searched, np.arange(T), T)[::-1])[::-1]  # smallest >= g
+    for a in range(0, N, CHUNK):
+        hi, ht = np.nonzero(~vis[a:a + CHUNK] & seen[a:a + CHUNK, None])
+        hi += a
+        s = src[hi, ht]
+        g = np.abs(ht - s)
+        between = ~searched[g] & (ht > 0) & (ht < T - 1)  # the others were searched above
+        hi, ht, s, g = hi[between], ht[between], s[between], g[between]
+        sign = np.sign(ht - s)
+        g1 = below[g]
+        t1, t2 = s + sign * g1, np.clip(s + sign * above[g], 0, T - 1)  # past the video's end: its last frame
+        g2 = np.abs(t2 - s)
+        ok1 = (g1 > 0) & done[hi, t1]
+        ok2 = (src[hi, t2] == s) & ~vis[hi, t2] & done[hi, t2]
+        frac = ((g - g1) / np.maximum(g2 - g1, 1))[:, None]
+        s1, s2 = step[hi, t1], step[hi, t2]
+        mid = np.where((ok1 & ok2)[:, None], s1 + frac * (s2 - s1), np.where(ok1[:, None], s1, s2))
+        use = ok1 | ok2
+        out[hi[use], ht[use]] += mid[use].astype(out.dtype, copy=False)
     return out
