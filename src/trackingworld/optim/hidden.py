@@ -30,8 +30,8 @@ SOFT_M = 0.01  # metres added to the donors' distances in their weights
 EPS = 1.0
 # the donors are searched at every gap (frames from the anchor) up to DENSE_GAPS, then at gaps growing by GAP_RATIO;
 # the frames between take interpolated steps. 120 frames (4.96M hidden observations, 36 of 119 gaps searched):
-# 10.7 -> 5.8 s, world accuracy 80.57 -> 80.47; four 32-48-frame scenes within 0.1 of searching every gap.
-# Sparser schedules cost more (4 then x1.41: 4.3 s but -0.7; 8 then x1.25: -0.5)
+# 10.7 -> 6.4-7.0 s, world accuracy 80.57 -> 80.46; ten 32-48-frame scenes within 0.1 of searching every gap.
+# Sparser schedules lost more accuracy (every gap to 4, then x1.41: 4.3 s but -0.7; to 8, then x1.25: -0.5)
 DENSE_GAPS = 12
 GAP_RATIO = 1.1
 CHUNK = 1 << 14  # tracks per chunk of the interpolation
