@@ -79,6 +79,16 @@ def test_offset_stat_takes_any_percentile(capsys):
     assert "not max or a percentile" in capsys.readouterr().err
 
 
+def test_carrying_options_reach_the_config():
+    from trackingworld.cli.main import _optim_config, build_parser
+    from trackingworld.config import OptimConfig
+
+    cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5"]))
+    assert (cfg.carry_k, cfg.carry_reach) == (4, 1.5)
+    default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
+    assert (default.carry_k, default.carry_reach) == (OptimConfig().carry_k, OptimConfig().carry_reach)
+
+
 def test_video_input(tiny_scene, tmp_path):
     import imageio.v3 as iio
 

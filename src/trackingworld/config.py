@@ -112,6 +112,9 @@ class OptimConfig:
     # the track's nearest visible frame (optim.hidden; 0: the position at the nearest visible frame is held, as
     # the authors' code does)
     carry_k: int = 8
+    # ... those farther than this (metres, and than twice the nearest one's distance) left out: a donor on
+    # another object (chosen on ten synthetic scenes; the scale is the depth prior's, metres for metric priors)
+    carry_reach: float = 0.3
     # a track inside the sure-dynamic mask region is called static only when its static fit also holds in
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.

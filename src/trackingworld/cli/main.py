@@ -241,6 +241,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--carry-k", type=int, default=d.carry_k,
                    help="hidden frames of dynamic tracks follow the motion of this many nearby tracks visible both "
                         "there and in the track's nearest visible frame (0: held)")
+    g.add_argument("--carry-reach", type=float, default=d.carry_reach, metavar="M",
+                   help="with --carry-k: leave out the tracks farther than this many metres (and than twice the "
+                        "nearest one's distance) from the hidden track, on another object")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
@@ -282,7 +285,8 @@ def _optim_config(a):
         test_stat=a.test_stat, static_outliers=a.static_outliers,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
-        dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, mask_dynamic_px=a.mask_dynamic_px,
+        dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, carry_reach=a.carry_reach,
+        mask_dynamic_px=a.mask_dynamic_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         own_test=a.own_test, prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,

@@ -13,7 +13,7 @@ the held position ``x_i(s)``.
 The donors are looked for among the tracks visible at both frames, not among the track's nearest neighbours at
 s: dense tracks lost by the 2D tracker are lost in bunches, and the nearest ones at s are then hidden at t too
 (on two synthetic scenes 57% and 71% of the hidden observations had none of their 16 nearest visible at t, and
-were held). Ten synthetic scenes: world accuracy of the dynamic tracks 67.8 -> 69.1 on the mean (README).
+were held). Ten synthetic scenes: world accuracy of the dynamic tracks 67.8 -> 69.0 on the mean (README).
 """
 
 from __future__ import annotations
@@ -44,7 +44,8 @@ TREE = dict(balanced_tree=False, compact_nodes=False)
 
 def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> np.ndarray:
     """[g] int: the gaps (frames from the anchor) at which the donors are searched: every one up to ``dense``,
-    then each about ``ratio`` times the one before, up to T - 1 (1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, ...)."""
+    then each about ``ratio`` times the one before, up to T - 1 (defaults, T = 120: 1 to 12, 13, 15, 16, 18, ...,
+    98, 107, 118)."""
     out, g = list(range(1, min(dense, T - 1) + 1)), float(dense)
     while True:
         g = max(g * ratio, g + 1)

@@ -386,7 +386,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if follow.any():
                 xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
             # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
-            xyz[dyn] = (carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k) if cfg.carry_k > 0
+            xyz[dyn] = (carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach) if cfg.carry_k > 0
                         else hold_invisible(xyz[dyn], vis[dyn]))
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
