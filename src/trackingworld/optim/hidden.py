@@ -119,7 +119,7 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
         t1, t2 = s + sign * g1, np.clip(s + sign * above[g], 0, T - 1)  # past the video's end: its last frame
         g2 = np.abs(t2 - s)
         ok1 = (g1 > 0) & done[hi, t1]
-        ok2 = (src[hi, t2] == s) & ~vis[hi, t2] & done[hi, t2]
+        ok2 = (src[hi, t2] == s) & done[hi, t2]  # done: hidden there and searched
         frac = ((g - g1) / np.maximum(g2 - g1, 1))[:, None]
         s1, s2 = step[hi, t1], step[hi, t2]
         mid = np.where((ok1 & ok2)[:, None], s1 + frac * (s2 - s1), np.where(ok1[:, None], s1, s2))
