@@ -79,14 +79,19 @@ def test_offset_stat_takes_any_percentile(capsys):
     assert "not max or a percentile" in capsys.readouterr().err
 
 
-def test_carrying_options_reach_the_config():
+def test_stage3_options_reach_the_config():
     from trackingworld.cli.main import _optim_config, build_parser
     from trackingworld.config import OptimConfig
 
-    cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5"]))
-    assert (cfg.carry_k, cfg.carry_reach) == (4, 1.5)
+    cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5",
+                                                   "--ts-order", "1"]))
+    assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order) == (4, 1.5, 1)
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
-    assert (default.carry_k, default.carry_reach) == (OptimConfig().carry_k, OptimConfig().carry_reach)
+    d = OptimConfig()
+    assert (default.carry_k, default.carry_reach, default.ts_order) == (d.carry_k, d.carry_reach, d.ts_order) == (
+        d.carry_k, d.carry_reach, 2)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
 
 
 def test_video_input(tiny_scene, tmp_path):

@@ -152,6 +152,33 @@ def test_stage3_solvers_agree_and_lower_the_objective():
     assert (d_amg - truth).abs().mean() < (d0 - truth).abs().mean()
 
 
+def test_stage3_second_difference_leaves_a_constant_velocity_mover_where_it_is():
+    # a rigid mover approaching the camera at constant velocity, exact depth targets: the paper's first
+    # difference (a zero-velocity prior) can only shorten its steps by pulling its depths; the second
+    # difference costs nothing there, so the exact depths stay the minimiser
+    rng = np.random.default_rng(2)
+    T, N = 8, 30
+    c2w = np.stack([pose_from_rt(np.eye(3), np.array([0.05 * t, 0, 0])) for t in range(T)])
+    X = np.stack([rng.uniform(-0.3, 0.3, N), rng.uniform(-0.3, 0.3, N), rng.uniform(3.8, 4.2, N)], 1)
+    Xt = X[None] + np.arange(T)[:, None, None] * np.array([0.02, 0, -0.08])
+    uv, z = project(transform(invert_pose(c2w)[:, None], Xt), K)
+    uv, z = uv.transpose(1, 0, 2), z.T
+    vis = np.ones((N, T), bool)
+    vis[:4, 2] = False  # a gap: no run of the second difference spans it
+    truth = torch.as_tensor(z[vis])
+    nb = stage3.neighbours(Xt.transpose(1, 0, 2), vis, np.zeros(N, np.int64), 4)
+    err = {}
+    for order in (1, 2):
+        p = stage3.build_problem(uv, vis, z, c2w, K, nb, (1.0, 1.0, 100.0, 10.0), torch.float64, "cpu", order)
+        assert p.ts.shape[1] == order + 1
+        d = stage3.solve_amg(p, p.target.clone(), tol=1e-10)
+        assert torch.allclose(d, stage3.solve_cg(p, p.target.clone(), iters=3000, tol=1e-14), atol=1e-5)
+        err[order] = float((d - truth).abs().max())
+    assert err[2] < 1e-4 < 0.01 < err[1]
+    with pytest.raises(ValueError, match="ts_order"):
+        stage3.build_problem(uv, vis, z, c2w, K, nb, (1.0, 1.0, 100.0, 10.0), torch.float64, "cpu", 3)
+
+
 def test_label_tracks_from_masks():
     masks = np.zeros((3, 40, 40), bool)
     masks[:, 10:30, 10:30] = True

@@ -231,6 +231,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
+    g.add_argument("--ts-order", type=int, default=d.ts_order, choices=[1, 2],
+                   help="stage-3 temporal smoothness: 2 = second difference, constant velocity is free (default); "
+                        "1 = first difference, a zero-velocity prior (the paper)")
     g.add_argument("--dc-target", default=d.dc_target, choices=DC_TARGETS,
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
                         "z / prior median, that ratio propagated from the nearest static tracks, or a robust "
@@ -284,7 +287,8 @@ def _optim_config(a):
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
         test_stat=a.test_stat, static_outliers=a.static_outliers,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
-        lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, dc_target=a.dc_target,
+        lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
+        dc_target=a.dc_target,
         dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, carry_reach=a.carry_reach,
         mask_dynamic_px=a.mask_dynamic_px,
         static_rebuild=a.static_rebuild,

@@ -7,7 +7,11 @@ Objective (means over each term's own elements), poses fixed:
     + lambda_ts ||X_kt - X_k,t-1||^2
 
 over the visible observations (ARAP and smoothness where both frames are visible; the frames in between are
-filled afterwards from the nearest visible frame).
+filled afterwards from the nearest visible frame). The smoothness is the paper's first difference by default;
+``ts_order`` 2 takes the second difference ``X_k,t+1 - 2 X_kt + X_k,t-1`` instead (three visible frames in a
+row), which costs nothing for an object moving at constant velocity: the first difference is a zero-velocity
+prior, and with the pixel rays fixed it can only shorten a moving object's steps by moving its depths (a
+mover approaching the camera comes out too close).
 
 Structured solver (default). The reprojection term (weight 1 per px^2, about (f/z)^2 ~ 10^4-10^5 per m^2
 across the ray) outweighs ARAP (100 per m^2) by orders of magnitude, so the optimum lies on the pixel rays to
@@ -33,8 +37,9 @@ from trackingworld.optim.linalg import pcg
 class DynProblem:
     """Visible observations of Nd dynamic tracks. idx [Nd,T] long (-1 = not visible) into the M unknowns;
     centre [M,3] camera centres, ray [M,3] world directions with unit camera z (so X = centre + ray * d);
-    target [M] depth-consistency target (metres); uv [M,2]; fr [M] frame; pairs of the smoothness and ARAP
-    terms as index tensors into the M unknowns."""
+    target [M] depth-consistency target (metres); uv [M,2]; fr [M] frame; the smoothness term's runs of
+    consecutive visible frames ``ts [P,order+1]`` with the finite-difference coefficients ``ts_coef`` and the
+    ARAP term's quadruples, as index tensors into the M unknowns."""
 
     idx: torch.Tensor
     centre: torch.Tensor
@@ -42,8 +47,8 @@ class DynProblem:
     target: torch.Tensor
     uv: torch.Tensor
     fr: torch.Tensor
-    ts_a: torch.Tensor  # (k, t-1)
-    ts_b: torch.Tensor  # (k, t)
+    ts: torch.Tensor  # [P,order+1]: (k,t-1), (k,t) or (k,t-1), (k,t), (k,t+1)
+    ts_coef: tuple[float, ...]
     arap: torch.Tensor  # [P,4]: (k,t), (j,t), (k,t-1), (j,t-1)
     w_dc: float
     w_ts: float
@@ -72,10 +77,16 @@ def neighbours(xyz: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, k: int
     return out
 
 
+TS_COEFS = {1: (-1.0, 1.0), 2: (1.0, -2.0, 1.0)}  # finite differences of the smoothness term, by order
+
+
 def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
-                  nbrs: np.ndarray, lambdas: tuple[float, float, float, float], dtype, device) -> DynProblem:
+                  nbrs: np.ndarray, lambdas: tuple[float, float, float, float], dtype, device,
+                  ts_order: int = 1) -> DynProblem:
     """uv [Nd,T,2], vis [Nd,T], target depth [Nd,T], poses [T,4,4], K, neighbours [Nd,k];
-    lambdas = (ba, dc, arap, ts)."""
+    lambdas = (ba, dc, arap, ts); ``ts_order``: 1 (paper) or 2, see the module docstring."""
+    if ts_order not in TS_COEFS:
+        raise ValueError(f"ts_order: {ts_order!r} is not 1 or 2")
     Nd, T = vis.shape
     idx = np.full((Nd, T), -1, np.int64)
     kk, tt = np.nonzero(vis)
@@ -85,9 +96,8 @@ def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w
     ray_c = pix @ Kinv.T
     ray = np.einsum("mij,mj->mi", poses_c2w[tt, :3, :3], ray_c)
     centre = poses_c2w[tt, :3, 3]
-    a, b = idx[:, :-1], idx[:, 1:]
-    ok = (a >= 0) & (b >= 0)
-    ts_a, ts_b = a[ok], b[ok]
+    runs = np.stack([idx[:, j:T - ts_order + j] for j in range(ts_order + 1)], -1)  # [Nd,T-order,order+1]
+    ts = runs[(runs >= 0).all(-1)]
     quads = []
     for j in range(nbrs.shape[1]):
         nb = nbrs[:, j]
@@ -103,15 +113,15 @@ def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w
     as_t = lambda x: torch.as_tensor(x, dtype=dtype, device=device)  # noqa: E731
     as_l = lambda x: torch.as_tensor(x, dtype=torch.long, device=device)  # noqa: E731
     return DynProblem(
-        as_l(idx), as_t(centre), as_t(ray), as_t(target[kk, tt]), as_t(uv[kk, tt]), as_l(tt), as_l(ts_a),
-        as_l(ts_b), as_l(arap), ldc / max(M, 1), lts / max(len(ts_a), 1), larap / max(len(arap), 1), lba)
+        as_l(idx), as_t(centre), as_t(ray), as_t(target[kk, tt]), as_t(uv[kk, tt]), as_l(tt), as_l(ts),
+        TS_COEFS[ts_order], as_l(arap), ldc / max(M, 1), lts / max(len(ts), 1), larap / max(len(arap), 1), lba)
 
 
 def _energy(X: torch.Tensor, z: torch.Tensor, p: DynProblem, with_const: bool = True) -> torch.Tensor:
     """Sum of the weighted depth, smoothness and ARAP terms for world points X [M,3] with camera depths z."""
     e = p.w_dc * ((z - p.target) ** 2 if with_const else z**2).sum()
-    if len(p.ts_a):
-        e = e + p.w_ts * ((X[p.ts_b] - X[p.ts_a]) ** 2).sum()
+    if len(p.ts):
+        e = e + p.w_ts * (sum(c * X[p.ts[:, j]] for j, c in enumerate(p.ts_coef)) ** 2).sum()
     if len(p.arap):
         q = p.arap
         e = e + p.w_arap * (((X[q[:, 0]] - X[q[:, 1]]) - (X[q[:, 2]] - X[q[:, 3]])) ** 2).sum()
@@ -135,8 +145,9 @@ def objective(X: torch.Tensor, p: DynProblem, poses_w2c: tuple[torch.Tensor, tor
 def _diag(p: DynProblem) -> torch.Tensor:
     n2 = (p.ray**2).sum(-1)
     diag = torch.full_like(n2, p.w_dc)
-    if len(p.ts_a):
-        diag.index_add_(0, p.ts_a, p.w_ts * n2[p.ts_a]).index_add_(0, p.ts_b, p.w_ts * n2[p.ts_b])
+    if len(p.ts):
+        for j, c in enumerate(p.ts_coef):
+            diag.index_add_(0, p.ts[:, j], p.w_ts * c * c * n2[p.ts[:, j]])
     for c in range(4):
         if len(p.arap):
             diag.index_add_(0, p.arap[:, c], p.w_arap * n2[p.arap[:, c]])
@@ -175,15 +186,16 @@ def normal_equations(p: DynProblem):
     rows, cols, vals, r0 = [np.arange(M)], [np.arange(M)], [np.full(M, np.sqrt(p.w_dc))], [
         -np.sqrt(p.w_dc) * p.target.detach().cpu().double().numpy()]
     n = M
-    ia, ib = p.ts_a.cpu().numpy(), p.ts_b.cpu().numpy()
+    ts = p.ts.cpu().numpy()
     sw = np.sqrt(p.w_ts)
     for k in range(3):
-        rr = n + np.arange(len(ia))
-        rows += [rr, rr]
-        cols += [ib, ia]
-        vals += [sw * a[ib, k], -sw * a[ia, k]]
-        r0.append(sw * (c[ib, k] - c[ia, k]))
-        n += len(ia)
+        rr = n + np.arange(len(ts))
+        for j, coef in enumerate(p.ts_coef):
+            rows.append(rr)
+            cols.append(ts[:, j])
+            vals.append(coef * sw * a[ts[:, j], k])
+        r0.append(sw * sum(coef * c[ts[:, j], k] for j, coef in enumerate(p.ts_coef)))
+        n += len(ts)
     q = p.arap.cpu().numpy()
     sw = np.sqrt(p.w_arap)
     for k in range(3):

@@ -557,7 +557,7 @@ def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype,
         return np.where(vis[..., None], transform(poses[None], unproject(uv, raw, K)), 0.0)
     lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
     nb = stage3.neighbours(transform(poses[None], unproject(uv, target, K)), vis, qf, cfg.arap_k)
-    p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device)
+    p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device, cfg.ts_order)
     d0 = p.target.clone()
     e0 = float(stage3.ray_energy(d0, p))
     if cfg.solver == "adam":
