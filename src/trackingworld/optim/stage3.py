@@ -7,11 +7,11 @@ Objective (means over each term's own elements), poses fixed:
     + lambda_ts ||X_kt - X_k,t-1||^2
 
 over the visible observations (ARAP and smoothness where both frames are visible; the frames in between are
-filled afterwards from the nearest visible frame). The smoothness is the paper's first difference by default;
-``ts_order`` 2 takes the second difference ``X_k,t+1 - 2 X_kt + X_k,t-1`` instead (three visible frames in a
-row), which costs nothing for an object moving at constant velocity: the first difference is a zero-velocity
-prior, and with the pixel rays fixed it can only shorten a moving object's steps by moving its depths (a
-mover approaching the camera comes out too close).
+filled afterwards from the nearest visible frame). That smoothness is the paper's first difference
+(``ts_order`` 1); ``ts_order`` 2 (the default) takes the second difference ``X_k,t+1 - 2 X_kt + X_k,t-1``
+instead (three visible frames in a row), which costs nothing for an object moving at constant velocity: the
+first difference is a zero-velocity prior, and with the pixel rays fixed it can only shorten a moving object's
+steps by moving its depths (a mover approaching the camera comes out too close).
 
 Structured solver (default). The reprojection term (weight 1 per px^2, about (f/z)^2 ~ 10^4-10^5 per m^2
 across the ray) outweighs ARAP (100 per m^2) by orders of magnitude, so the optimum lies on the pixel rays to
@@ -82,9 +82,9 @@ TS_COEFS = {1: (-1.0, 1.0), 2: (1.0, -2.0, 1.0)}  # finite differences of the sm
 
 def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
                   nbrs: np.ndarray, lambdas: tuple[float, float, float, float], dtype, device,
-                  ts_order: int = 1) -> DynProblem:
+                  ts_order: int = 2) -> DynProblem:
     """uv [Nd,T,2], vis [Nd,T], target depth [Nd,T], poses [T,4,4], K, neighbours [Nd,k];
-    lambdas = (ba, dc, arap, ts); ``ts_order``: 1 (paper) or 2, see the module docstring."""
+    lambdas = (ba, dc, arap, ts); ``ts_order``: 2 (default) or 1 (the paper), see the module docstring."""
     if ts_order not in TS_COEFS:
         raise ValueError(f"ts_order: {ts_order!r} is not 1 or 2")
     Nd, T = vis.shape
