@@ -94,6 +94,22 @@ def test_stage3_options_reach_the_config():
         build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
 
 
+def test_unknown_optimiser_choice_is_refused_before_any_work():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from trackingworld.config import TS_ORDERS, OptimConfig, RunConfig
+    from trackingworld.errors import InputError
+    from trackingworld.optim import stage3
+    from trackingworld.pipeline.world import run_trackingworld
+
+    assert tuple(sorted(stage3.TS_COEFS)) == TS_ORDERS  # the CLI's choices are the solver's orders
+    inp = SimpleNamespace(depth=np.ones((2, 4, 4), np.float32))  # nothing else is read before the check
+    with pytest.raises(InputError, match="ts_order: 3 is not 1 or 2"):
+        run_trackingworld(inp, None, RunConfig(optim=OptimConfig(ts_order=3)))
+
+
 def test_video_input(tiny_scene, tmp_path):
     import imageio.v3 as iio
 

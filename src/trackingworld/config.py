@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass, field
 DC_TARGETS = ("frame", "prior", "local", "field")  # OptimConfig.dc_target
 UPSAMPLERS = ("convex", "convex-mean", "bilinear")  # Track2DConfig.upsampler
 STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
+TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
 
 
 def offset_percentile(stat: str) -> int | None:

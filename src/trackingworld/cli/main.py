@@ -208,7 +208,7 @@ ABLATIONS = {
 
 
 def _optim_args(p: argparse.ArgumentParser) -> None:
-    from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, OptimConfig
+    from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, TS_ORDERS, OptimConfig
 
     d = OptimConfig()
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
@@ -231,7 +231,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
-    g.add_argument("--ts-order", type=int, default=d.ts_order, choices=[1, 2],
+    g.add_argument("--ts-order", type=int, default=d.ts_order, choices=TS_ORDERS,
                    help="stage-3 temporal smoothness: 2 = second difference, constant velocity is free (default); "
                         "1 = first difference, a zero-velocity prior (the paper)")
     g.add_argument("--dc-target", default=d.dc_target, choices=DC_TARGETS,

@@ -77,7 +77,8 @@ def neighbours(xyz: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, k: int
     return out
 
 
-TS_COEFS = {1: (-1.0, 1.0), 2: (1.0, -2.0, 1.0)}  # finite differences of the smoothness term, by order
+# finite differences of the smoothness term, by order (the orders are config.TS_ORDERS)
+TS_COEFS = {1: (-1.0, 1.0), 2: (1.0, -2.0, 1.0)}
 
 
 def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
