@@ -2,6 +2,7 @@
 frames, not 16x), on synthetic scenes with the priors given, so that every length runs the same code path.
 
     .venv/bin/python benchmarks/bench_scaling.py      # writes benchmarks/results/scaling_default.md
+    python benchmarks/bench_scaling.py --device cuda  # optimisation on the GPU: scaling_default_cuda.md
 
 One scene is rendered at the longest length; every shorter length runs on each of the non-overlapping windows
 of that many frames it contains (30 frames of 120: frames 0-29, 30-59, 60-89, 90-119), so that the comparison
@@ -63,6 +64,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, nargs="+", default=[30, 60, 120])
     ap.add_argument("--size", type=int, nargs=2, default=[320, 240], metavar=("W", "H"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="cpu", help="where the optimisation runs (cpu | cuda | cuda:N)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_scaling_", a.keep)
@@ -75,7 +77,8 @@ def main(argv=None) -> int:
             scene = cut_scene(full, work / f"scene{T}_{start}", start, T)
             inp = scene / "input"
             tracks = tracks_file(scene, work / f"tracks{T}_{start}.npz")
-            cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
+            cfg = RunConfig(device=a.device,
+                            inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
                                                masks=str(inp / "masks"), intrinsics=str(inp / "intrinsics.txt")),
                             track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)),
                             optim=OptimConfig(verbose=False))
@@ -96,11 +99,13 @@ def main(argv=None) -> int:
     def world(r):
         return r["metrics"]["world_3d"]["all"].get("acc_avg")
 
+    dev_arg = "" if a.device == "cpu" else f" --device {a.device}"
     T0 = min(results)
     base = mean(results[T0], lambda r: r["optimisation_s"])
     lines = md_table_start(
         f"# Optimisation cost against the number of frames (`{a.preset}` scene, {a.size[0]}x{a.size[1]}, priors "
-        f"given, seed {a.seed})", "Command: `.venv/bin/python benchmarks/bench_scaling.py`",
+        f"given, seed {a.seed}, optimisation on {a.device})",
+        f"Command: `.venv/bin/python benchmarks/bench_scaling.py{dev_arg}`",
         "| frames | windows | tracks | visible observations | optimisation [s] | x of the shortest | "
         "us per observation | " +
         " | ".join(f"{s} [s]" for s in OPT_STAGES) + " | ATE [% path] | world 3D acc |")
@@ -126,7 +131,8 @@ def main(argv=None) -> int:
                          f"{r['optim']['dynamic']:,} | {r['optimisation_s']:.1f} | " +
                          " | ".join(f"{tm.get(s, 0.0):.1f}" for s in OPT_STAGES) +
                          f" | {fmt(m['camera']['ate_pct_path'], 2)} | {fmt(world(r), 1)} |")
-    write_results(f"scaling_{a.preset}", lines, {str(k): v for k, v in results.items()})
+    stem = f"scaling_{a.preset}" + ("" if a.device == "cpu" else "_" + a.device.replace(":", "_"))
+    write_results(stem, lines, {str(k): v for k, v in results.items()})
     return 0
 
 
