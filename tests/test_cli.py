@@ -84,12 +84,12 @@ def test_stage3_options_reach_the_config():
     from trackingworld.config import OptimConfig
 
     cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5",
-                                                   "--ts-order", "1"]))
-    assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order) == (4, 1.5, 1)
+                                                   "--ts-order", "1", "--stage3-linear", "amg"]))
+    assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
-    assert (default.carry_k, default.carry_reach, default.ts_order) == (d.carry_k, d.carry_reach, d.ts_order) == (
-        d.carry_k, d.carry_reach, 2)
+    got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
+    assert got == (d.carry_k, d.carry_reach, d.ts_order, d.stage3_linear) == (d.carry_k, d.carry_reach, 2, "cg")
     with pytest.raises(SystemExit):
         build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
 
@@ -108,6 +108,8 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
     inp = SimpleNamespace(depth=np.ones((2, 4, 4), np.float32))  # nothing else is read before the check
     with pytest.raises(InputError, match="ts_order: 3 is not 1 or 2"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(ts_order=3)))
+    with pytest.raises(InputError, match="stage3_linear: 'lu' is not cg or amg"):
+        run_trackingworld(inp, None, RunConfig(optim=OptimConfig(stage3_linear="lu")))
 
 
 def test_video_input(tiny_scene, tmp_path):

@@ -208,7 +208,7 @@ ABLATIONS = {
 
 
 def _optim_args(p: argparse.ArgumentParser) -> None:
-    from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, TS_ORDERS, OptimConfig
+    from trackingworld.config import DC_TARGETS, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig
 
     d = OptimConfig()
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
@@ -234,6 +234,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--ts-order", type=int, default=d.ts_order, choices=TS_ORDERS,
                    help="stage-3 temporal smoothness: 2 = second difference, constant velocity is free (default); "
                         "1 = first difference, a zero-velocity prior (the paper)")
+    g.add_argument("--stage3-linear", default=d.stage3_linear, choices=STAGE3_LINEAR,
+                   help="stage 3's linear solve (lm solver): cg = Jacobi-preconditioned CG on the sparse normal "
+                        "equations, on the run's device (default) | amg = multigrid-preconditioned CG (pyamg, CPU)")
     g.add_argument("--dc-target", default=d.dc_target, choices=DC_TARGETS,
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
                         "z / prior median, that ratio propagated from the nearest static tracks, or a robust "
@@ -288,6 +291,7 @@ def _optim_config(a):
         test_stat=a.test_stat, static_outliers=a.static_outliers,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
+        stage3_linear=a.stage3_linear,
         dc_target=a.dc_target,
         dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, carry_reach=a.carry_reach,
         mask_dynamic_px=a.mask_dynamic_px,

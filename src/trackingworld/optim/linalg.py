@@ -2,9 +2,19 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 
 import torch
+
+
+def sparse_csr(crow: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """A torch CSR matrix from index tensors valid by construction, without torch's invariant check; torch's
+    warnings that CSR is in beta and (2.11) that the check is off even when told so are silenced here."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sparse invariant checks")
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        return torch.sparse_csr_tensor(crow, cols, vals, shape, check_invariants=False)
 
 
 def pcg(matvec: Callable[[torch.Tensor], torch.Tensor], rhs: torch.Tensor,

@@ -40,7 +40,7 @@ import torch
 
 from trackingworld.config import OptimConfig, offset_percentile
 from trackingworld.optim import lie
-from trackingworld.optim.linalg import pcg
+from trackingworld.optim.linalg import pcg, sparse_csr
 
 
 @dataclass
@@ -265,7 +265,7 @@ def _point_pose_operator(G: torch.Tensor, pt: torch.Tensor, fr: torch.Tensor, N:
         sub = torch.arange(18 // width, device=dev)  # rows per point (3) or per frame (6)
         crow = (18 * start[:, None] + width * sub[None] * cnt[:, None]).reshape(-1)
         crow = torch.cat([crow, torch.full((1,), M * 18, dtype=torch.long, device=dev)])
-        return torch.sparse_csr_tensor(crow, cols, vals, shape, check_invariants=False)
+        return sparse_csr(crow, cols, vals, shape)
 
     cnt, start, rank = layout(pt, fr, N)  # B: row 3 pt + j, entry 6 rank + i
     pos = 18 * start[pt][:, None, None] + 6 * cnt[pt][:, None, None] * j3 + 6 * rank[:, None, None] + i6

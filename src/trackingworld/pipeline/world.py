@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from trackingworld.config import DC_TARGETS, STATIC_REBUILDS, TS_ORDERS, OptimConfig, RunConfig
+from trackingworld.config import DC_TARGETS, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig, RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length, invert_pose, transform, unproject
 from trackingworld.io.result import Result
@@ -566,7 +566,7 @@ def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype,
         X = stage3.solve_adam(p, d0, (R, t), Kt, cfg.adam_iters[2], cfg.adam_lr, log)
         e1 = float(stage3.objective(X, p, (R, t), Kt))
     else:
-        d = stage3.solve_cg(p, d0, log=log) if str(device).startswith("cuda") else stage3.solve_amg(p, d0)
+        d = stage3.solve_amg(p, d0) if cfg.stage3_linear == "amg" else stage3.solve_cg(p, d0, log=log)
         X = p.centre + p.ray * d[:, None]
         e1 = float(stage3.ray_energy(d, p))
     info["stage3"] = {"loss_init": e0, "loss": e1, "unknowns": int(p.target.shape[0])}
@@ -586,7 +586,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     mode = cfg.optim.refine_focal
     if mode not in ("auto", "on", "off"):
         raise InputError(f"refine_focal: {mode!r} is not auto, on or off")
-    for name, allowed in (("static_rebuild", STATIC_REBUILDS), ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS)):
+    for name, allowed in (("static_rebuild", STATIC_REBUILDS), ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS),
+                          ("stage3_linear", STAGE3_LINEAR)):
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
