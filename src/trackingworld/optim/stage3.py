@@ -163,6 +163,7 @@ def solve_cg(p: DynProblem, d0: torch.Tensor, iters: int = 5000, tol: float = 1e
             log("stage 3", it, float(ray_energy(x, p)))
 
     rhs = torch.as_tensor(b, dtype=dt, device=dev)
+    tol = max(tol, 10 * torch.finfo(dt).eps)  # float32: a residual of 1e-8 is below its rounding, stop at 1.2e-6
     return pcg(lambda v: As @ v, rhs, lambda r: Minv * r, x0=d0.detach(), iters=iters, tol=tol, callback=progress)
 
 
