@@ -119,9 +119,9 @@ def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w
         TS_COEFS[ts_order], as_l(arap), ldc / max(M, 1), lts / max(len(ts), 1), larap / max(len(arap), 1), lba)
 
 
-def _energy(X: torch.Tensor, z: torch.Tensor, p: DynProblem, with_const: bool = True) -> torch.Tensor:
+def _energy(X: torch.Tensor, z: torch.Tensor, p: DynProblem) -> torch.Tensor:
     """Sum of the weighted depth, smoothness and ARAP terms for world points X [M,3] with camera depths z."""
-    e = p.w_dc * ((z - p.target) ** 2 if with_const else z**2).sum()
+    e = p.w_dc * ((z - p.target) ** 2).sum()
     if len(p.ts):
         e = e + p.w_ts * (sum(c * X[p.ts[:, j]] for j, c in enumerate(p.ts_coef)) ** 2).sum()
     if len(p.arap):
@@ -130,10 +130,9 @@ def _energy(X: torch.Tensor, z: torch.Tensor, p: DynProblem, with_const: bool = 
     return e
 
 
-def ray_energy(d: torch.Tensor, p: DynProblem, with_const: bool = True) -> torch.Tensor:
+def ray_energy(d: torch.Tensor, p: DynProblem) -> torch.Tensor:
     """The objective for points on their rays at camera depths d [M] (reprojection is zero there)."""
-    X = (p.centre if with_const else 0) + p.ray * d[:, None]
-    return _energy(X, d, p, with_const)
+    return _energy(p.centre + p.ray * d[:, None], d, p)
 
 
 def objective(X: torch.Tensor, p: DynProblem, poses_w2c: tuple[torch.Tensor, torch.Tensor], K) -> torch.Tensor:
