@@ -37,7 +37,11 @@ def tracks_file(scene: Path, path: Path, **track2d) -> Path:
     """Dense tracks of a rendered scene's frames written in the CoTracker layout, for ``--tracks`` (every row
     shares them); ``track2d``: Track2DConfig fields other than the defaults."""
     frames, _ = read_frames(str(scene / "input" / "frames"))
-    tr = track_video(frames, Track2DConfig(**track2d), verbose=False)
+    return write_tracks(track_video(frames, Track2DConfig(**track2d), verbose=False), path)
+
+
+def write_tracks(tr, path: Path) -> Path:
+    """A TrackResult written as a tracks file in the CoTracker layout (``--tracks``, ``tracker="file"``)."""
     write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
     return path
 

@@ -21,9 +21,8 @@ import time
 import numpy as np
 import torch
 
-from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_dir, write_results  # noqa: I001 (a sibling script module)
+from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_dir, write_results, write_tracks  # noqa: I001,E501 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
-from trackingworld.io.atomic import write_npz
 from trackingworld.io.frames import read_frames
 from trackingworld.pipeline.tracks import track_video
 from trackingworld.synth import render_and_write
@@ -75,8 +74,7 @@ def main(argv=None) -> int:
         tr = track_video(frames, Track2DConfig(), None, d, verbose=False)
         _sync(d)
         secs = time.perf_counter() - t0
-        path = work / f"tracks_{d.replace(':', '_')}.npz"
-        write_npz(path, tracks=tr.tracks.transpose(1, 0, 2), visibility=tr.visible.T, queries=tr.queries)
+        path = write_tracks(tr, work / f"tracks_{d.replace(':', '_')}.npz")
         row = {"seconds": secs, "tracks": int(tr.tracks.shape[0]), "peak_gpu_gb": _peak_gpu_gb(d), "path": str(path)}
         if ref is None:
             ref = tr
