@@ -108,6 +108,8 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
     inp = SimpleNamespace(depth=np.ones((2, 4, 4), np.float32))  # nothing else is read before the check
     with pytest.raises(InputError, match="ts_order: 3 is not 1 or 2"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(ts_order=3)))
+    with pytest.raises(InputError, match="refine_focal: 'yes' is not auto or on or off"):
+        run_trackingworld(inp, None, RunConfig(optim=OptimConfig(refine_focal="yes")))
     with pytest.raises(InputError, match="stage3_linear: 'lu' is not cg or amg"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(stage3_linear="lu")))
 

@@ -8,6 +8,7 @@ DC_TARGETS = ("frame", "prior", "local", "field")  # OptimConfig.dc_target
 UPSAMPLERS = ("convex", "convex-mean", "bilinear")  # Track2DConfig.upsampler
 STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
 TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
+REFINE_FOCAL = ("auto", "on", "off")  # OptimConfig.refine_focal
 STAGE3_LINEAR = ("cg", "amg")  # OptimConfig.stage3_linear (optim.stage3.solve_cg / solve_amg)
 
 

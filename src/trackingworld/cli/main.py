@@ -208,7 +208,7 @@ ABLATIONS = {
 
 
 def _optim_args(p: argparse.ArgumentParser) -> None:
-    from trackingworld.config import DC_TARGETS, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig
+    from trackingworld.config import DC_TARGETS, REFINE_FOCAL, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig
 
     d = OptimConfig()
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
@@ -224,7 +224,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper) the same statistic in the as-static test of the tracks outside the bundle "
                         "adjustment, poses held (default p75: a static track may leave its point in a quarter of its "
                         "frames, which are then left out, see --static-outliers; max: the paper)")
-    g.add_argument("--refine-focal", default=d.refine_focal, choices=["auto", "on", "off"],
+    g.add_argument("--refine-focal", default=d.refine_focal, choices=REFINE_FOCAL,
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
     g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
     g.add_argument("--lambda-dc", type=float, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")

@@ -13,7 +13,15 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from trackingworld.config import DC_TARGETS, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig, RunConfig
+from trackingworld.config import (
+    DC_TARGETS,
+    REFINE_FOCAL,
+    STAGE3_LINEAR,
+    STATIC_REBUILDS,
+    TS_ORDERS,
+    OptimConfig,
+    RunConfig,
+)
 from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length, invert_pose, transform, unproject
 from trackingworld.io.result import Result
@@ -583,13 +591,11 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     timings = {} if timings is None else timings
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
-    mode = cfg.optim.refine_focal
-    if mode not in ("auto", "on", "off"):
-        raise InputError(f"refine_focal: {mode!r} is not auto, on or off")
-    for name, allowed in (("static_rebuild", STATIC_REBUILDS), ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS),
-                          ("stage3_linear", STAGE3_LINEAR)):
+    for name, allowed in (("refine_focal", REFINE_FOCAL), ("static_rebuild", STATIC_REBUILDS),
+                          ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS), ("stage3_linear", STAGE3_LINEAR)):
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
+    mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg = cfg.optim
     if depth_source(cfg.inputs.depth) == "none" and (optim_cfg.depth_mover_log > 0 or optim_cfg.static_refit_dc > 0):
