@@ -88,7 +88,7 @@ def build_problem(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, poses_c2w
     """uv [Nd,T,2], vis [Nd,T], target depth [Nd,T], poses [T,4,4], K, neighbours [Nd,k];
     lambdas = (ba, dc, arap, ts); ``ts_order``: 2 (default) or 1 (the paper), see the module docstring."""
     if ts_order not in TS_COEFS:
-        raise ValueError(f"ts_order: {ts_order!r} is not 1 or 2")
+        raise ValueError(f"ts_order: {ts_order!r} is not {' or '.join(map(str, TS_COEFS))}")
     Nd, T = vis.shape
     idx = np.full((Nd, T), -1, np.int64)
     kk, tt = np.nonzero(vis)
