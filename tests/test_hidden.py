@@ -113,3 +113,24 @@ def test_gaps_between_searched_ones_take_interpolated_steps():
     assert gaps[0] == 1 and gaps[-1] <= 59 and len(gaps) < 40 and np.all(np.diff(gaps) > 0)
     out = carry_hidden(xyz, vis, k=4)
     assert np.abs(out[0] - xyz[0]).max() < 1e-5
+
+
+def test_the_result_does_not_depend_on_the_threads():
+    # many (anchor, frame) pairs on a rotating object with random losses: one thread and several give the same
+    # array to the bit (each pair's step is written once, by its own search)
+    rng = np.random.default_rng(3)
+    N, T = 300, 30
+    base = rng.normal(size=(N, 3)) * 0.3 + np.array([0.0, 0.0, 5.0])
+    ang = np.deg2rad(2.0) * np.arange(T)
+    c, s = np.cos(ang), np.sin(ang)
+    R = np.zeros((T, 3, 3))
+    R[:, 0, 0], R[:, 0, 2], R[:, 1, 1], R[:, 2, 0], R[:, 2, 2] = c, s, 1, -s, c
+    centre = np.array([0.0, 0.0, 5.0])
+    xyz = np.einsum("tij,nj->nti", R, base - centre) + centre + 0.03 * np.arange(T)[None, :, None]
+    vis = rng.random((N, T)) > 0.4
+    one = carry_hidden(xyz, vis, k=8, threads=1)
+    assert np.array_equal(one, carry_hidden(xyz, vis, k=8, threads=4))
+    hidden = ~vis & vis.any(1, keepdims=True)
+    carried = np.linalg.norm(one - xyz, axis=-1)[hidden]  # and it is carried, not held
+    held = np.linalg.norm(hold_invisible(xyz, vis) - xyz, axis=-1)[hidden]
+    assert carried.mean() < 0.2 * held.mean() and held.mean() > 0.03

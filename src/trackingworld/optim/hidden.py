@@ -18,6 +18,9 @@ were held). Ten synthetic scenes: world accuracy of the dynamic tracks 67.8 -> 6
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -40,6 +43,15 @@ CHUNK = 1 << 14  # tracks per chunk of the interpolation
 # (a third less to build, the queries as fast), positions kept in float32 but per pair: the carrying there 6.4-7.8 s
 # (four runs) -> 4.6-5.2 s (three), world accuracy 80.46 -> 80.43; six 32-48-frame scenes within 0.04
 TREE = dict(balanced_tree=False, compact_nodes=False)
+# the (s, t) pairs are shared among this many threads (scipy's kNN and numpy's larger operations release the GIL):
+# 120 frames, 5,888 pairs on 2 cores: 3.72 -> 2.58 s for the searches, the same steps to the bit (README)
+MAX_THREADS = 8
+
+
+def carry_threads() -> int:
+    """Threads for the carrying's searches: the CPUs this process may run on, at most MAX_THREADS."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_THREADS, cpus))
 
 
 def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> np.ndarray:
@@ -54,14 +66,34 @@ def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> 
         out.append(int(round(g)))
 
 
+def donor_step(at_s: np.ndarray, at_t: np.ndarray, donors: np.ndarray, i: np.ndarray, k: int, reach: float,
+               max_donors: int = MAX_DONORS) -> np.ndarray | None:
+    """The step ``[n,3]`` float32 (metres) from frame s to frame t of the tracks ``i`` [n] (indices), the weighted
+    mean of their ``k`` nearest ``donors`` (indices of tracks visible at both frames, evenly thinned to
+    ``max_donors``) at s, by the module docstring's weights. ``at_s``, ``at_t`` [N,3] every track's position at
+    s and t (float32 world metres; only the donors' and, at s, the tracks' are read). None without donors."""
+    if not len(donors):
+        return None
+    if len(donors) > max_donors:
+        donors = donors[:: -(-len(donors) // max_donors)]
+    kk = min(k, len(donors))
+    from_s = at_s[donors].astype(np.float64)
+    d, j = cKDTree(from_s, **TREE).query(at_s[i].astype(np.float64), k=kk, workers=1, eps=EPS)
+    d, j = d.reshape(len(i), kk), j.reshape(len(i), kk)
+    w = np.where(d <= np.maximum(reach, 2 * d[:, :1]), 1.0 / (d + SOFT_M), 0.0)
+    moved = at_t[donors] - from_s  # [m,3] each donor's motion from s to t
+    return (np.einsum("ck,ckd->cd", w, moved[j]) / w.sum(1, keepdims=True)).astype(np.float32)
+
+
 def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.3,
-                 max_donors: int = MAX_DONORS) -> np.ndarray:
+                 max_donors: int = MAX_DONORS, threads: int | None = None) -> np.ndarray:
     """Tracks ``xyz [N,T,3]`` (world metres; only the visible frames ``vis [N,T]`` are read) with every hidden
     frame carried by its donors' motion (module docstring: ``k`` donors, ``reach`` metres). The donors are
     searched at the gaps of :func:`searched_gaps` from the anchor; a hidden frame in between takes the step
     interpolated linearly between the searched frames on either side of it (the first and last frames of the
     video are searched from every anchor; where no searched frame follows in the same run of hidden frames, the
-    step of the one before). Tracks never visible are returned as given.
+    step of the one before). Tracks never visible are returned as given. The searches run on ``threads``
+    threads (None: :func:`carry_threads`); the result does not depend on it.
     Returns a new ``[N,T,3]`` array of xyz's dtype."""
     N, T = vis.shape
     src = nearest_visible_frame(vis)  # [N,T]
@@ -76,6 +108,7 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     searched[gaps] = True
     step = np.zeros((N, T, 3), np.float32)  # the donors' step at the searched hidden frames
     done = np.zeros((N, T), bool)  # ... where there were donors
+    pairs = []  # (s, t, the tracks hidden at t with anchor s)
     for t in range(T):
         hidden = np.flatnonzero(~vis_t[t] & seen)
         if 0 < t < T - 1:  # the first and last frames are searched from every anchor (the runs' ends)
@@ -86,24 +119,18 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
         order = np.argsort(anchor, kind="stable")
         hidden, anchor = hidden[order], anchor[order]
         cuts = np.flatnonzero(np.diff(anchor)) + 1
-        for who in np.split(np.arange(len(hidden)), cuts):
-            s = int(anchor[who[0]])
-            donors = np.flatnonzero(vis_t[s] & vis_t[t])
-            if not len(donors):
-                continue
-            if len(donors) > max_donors:
-                donors = donors[:: -(-len(donors) // max_donors)]
-            kk = min(k, len(donors))
-            i = hidden[who]
-            at_s = pos[s, donors].astype(np.float64)
-            d, j = cKDTree(at_s, **TREE).query(pos[s, i].astype(np.float64), k=kk, workers=1, eps=EPS)
-            d, j = d.reshape(len(i), kk), j.reshape(len(i), kk)
-            w = np.where(d <= np.maximum(reach, 2 * d[:, :1]), 1.0 / (d + SOFT_M), 0.0)
-            moved = pos[t, donors] - at_s  # [m,3] each donor's motion from s to t
-            st = (np.einsum("ck,ckd->cd", w, moved[j]) / w.sum(1, keepdims=True)).astype(np.float32)
-            step[i, t] = st
-            done[i, t] = True
-            out[i, t] += st.astype(out.dtype, copy=False)
+        pairs += [(int(anchor[who[0]]), t, hidden[who]) for who in np.split(np.arange(len(hidden)), cuts)]
+
+    def pair_step(pair):
+        s, t, i = pair
+        return donor_step(pos[s], pos[t], np.flatnonzero(vis_t[s] & vis_t[t]), i, k, reach, max_donors)
+
+    with ThreadPoolExecutor(carry_threads() if threads is None else threads) as pool:
+        for (_, t, i), st in zip(pairs, pool.map(pair_step, pairs), strict=True):
+            if st is not None:
+                step[i, t] = st
+                done[i, t] = True
+                out[i, t] += st.astype(out.dtype, copy=False)
     # the hidden frames between searched ones: linear in the gap between the searched frames around them
     below = np.maximum.accumulate(np.where(searched, np.arange(T), 0))  # [T] largest searched gap <= g
     above = np.minimum.accumulate(np.where(searched, np.arange(T), T)[::-1])[::-1]  # smallest >= g
