@@ -253,6 +253,12 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
+    g.add_argument("--slip-run", type=float, default=d.slip_run, metavar="FRAC",
+                   help="(not in the paper) a masked or ambiguous track that fails the static test is static when "
+                        "the point fitted around its query frame holds over a run of at least this fraction of "
+                        "its visible frames (then dragged off by a mover: the rest is left out; 0: off)")
+    g.add_argument("--slip-px", type=float, default=d.slip_px,
+                   help="with --slip-run: the run's reprojection bound (px; --mask-dynamic-px in the dynamic mask)")
     g.add_argument("--depth-mover", type=float, default=d.depth_mover_log, metavar="LOG",
                    help="static tracks whose fitted depth disagrees with the prior by this much (log units) in a "
                         "local majority of most of their frames become dynamic: movers along the epipolar lines "
@@ -294,7 +300,7 @@ def _optim_config(a):
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target,
         dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, carry_reach=a.carry_reach,
-        mask_dynamic_px=a.mask_dynamic_px,
+        mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         own_test=a.own_test, prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,

@@ -37,6 +37,7 @@ from trackingworld.optim.depth_movers import depth_movers, less_fields, log_dept
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.ratio_field import fit_log_fields
+from trackingworld.optim.slip import frames_around, long_runs, run_around
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
@@ -112,6 +113,26 @@ def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
     out = [fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device)
            for c, vc in _chunks(tracks, vis, cfg.test_frames)]
     return tuple(np.concatenate(x) for x in zip(*out, strict=True))
+
+
+def slip_runs(tracks, uv, D, vis, qf, px, K, R, t, cfg: OptimConfig, device) -> tuple[np.ndarray, np.ndarray]:
+    """The run test of ``optim.slip`` for ``tracks`` [n] (indices): each one's static point fitted to its query
+    frame and the ``cfg.slip_window`` visible frames either side (poses R, t world-to-camera held, depth target
+    ``D`` [N,T] metres), and the run of its visible frames around the query frame (``qf`` [N]) where that point
+    reprojects within ``px`` [n] pixels of the track (``uv`` [N,T,2]). Returns (run [n,T] bool, X [n,3] world
+    metres). In float32 and in chunks of FIT_CHUNK tracks."""
+    run = np.zeros((len(tracks), vis.shape[1]), bool)
+    X = np.zeros((len(tracks), 3), np.float32)
+    for a in range(0, len(tracks), FIT_CHUNK):
+        c = tracks[a:a + FIT_CHUNK]
+        near = frames_around(vis[c], qf[c], cfg.slip_window)
+        _, Rf, tf, Xc = _static_points(uv[c], D[c], near, K, R, t, cfg, torch.float32, device)
+        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
+        err = np.full(vis[c].shape, np.inf, np.float32)
+        err[pc.pt.cpu().numpy(), pc.fr.cpu().numpy()] = stage2.residuals(Rf, tf, Xc, pc)[1].norm(dim=-1).cpu().numpy()
+        run[a:a + len(c)] = run_around(vis[c], err > px[a:a + len(c), None], qf[c])
+        X[a:a + len(c)] = Xc.cpu().numpy()
+    return run, X
 
 
 def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) -> np.ndarray:
@@ -275,11 +296,27 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             still, Xc, worst = fits_static_chunked(cand, uv, Dfit, vis, K, R, t, cfg, device)
             if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
                 still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
+            slipped = 0
+            if cfg.slip_run > 0 and not still.all():
+                # (not in the paper) a failed track that holds a static point around its query frame and then
+                # slips off it is that static point, seen in the run only (optim.slip)
+                failed = np.flatnonzero(~still)
+                px = np.full(len(failed), cfg.slip_px)
+                if cfg.mask_dynamic_px > 0:
+                    px[labels[cand[failed]] == DYNAMIC] = min(cfg.slip_px, cfg.mask_dynamic_px)
+                run, Xs = slip_runs(cand[failed], uv, Dfit, vis, qf, px, K, R, t, cfg, device)
+                ok = long_runs(run, vis[cand[failed]], cfg.slip_run)
+                if ok.any():
+                    vis = vis.copy()
+                    vis[cand[failed[ok]]] = run[ok]
+                    still[failed[ok]] = True
+                    Xc[failed[ok]] = Xs[ok]
+                slipped = int(ok.sum())
             fixed = cand[still]
             dynamic[fixed] = False
             dynamic[cand[~still]] = True
             xyz[fixed] = Xc[still][:, None]
-            info["classify"] = {"tested": int(len(cand)), "static": int(still.sum())}
+            info["classify"] = {"tested": int(len(cand)), "static": int(still.sum()), "slipped": slipped}
     own = cfg.own_test  # (not in the paper) the static tracks' own observations have a say
     with tm("rebuild_static"):
         # every other static / ambiguous track: its own ray at the query frame, depth from the propagated
