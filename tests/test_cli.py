@@ -84,8 +84,10 @@ def test_stage3_options_reach_the_config():
     from trackingworld.config import OptimConfig
 
     cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5",
-                                                   "--ts-order", "1", "--stage3-linear", "amg"]))
+                                                   "--ts-order", "1", "--stage3-linear", "amg", "--slip-run", "0.5",
+                                                   "--slip-px", "3", "--dc-edge-sigma", "0"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
+    assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
@@ -112,6 +114,9 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(refine_focal="yes")))
     with pytest.raises(InputError, match="stage3_linear: 'lu' is not cg or amg"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(stage3_linear="lu")))
+    for bad in (dict(slip_run=1.5), dict(slip_run=-0.1), dict(slip_px=0.0), dict(slip_window=0)):
+        with pytest.raises(InputError, match="the run's fraction is from 0 to 1"):
+            run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
 
 
 def test_video_input(tiny_scene, tmp_path):

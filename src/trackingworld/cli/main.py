@@ -244,6 +244,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dc-field-temporal", type=float, default=d.dc_field_temporal, metavar="W",
                    help="with --dc-target field: hold each frame's field near its neighbours' in time with this "
                         "weight (0: each frame on its own, as before)")
+    g.add_argument("--dc-edge-sigma", type=float, default=d.dc_edge_sigma_px, metavar="PX",
+                   help="(not in the paper) stage 3's prior on the dynamic tracks averaged over their pixels away from "
+                        "the prior's blurred object rims, with a Gaussian of this many px (0: the prior as sampled)")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
                    help="hidden frames of dynamic tracks follow the motion of this many nearby tracks visible both "
                         "there and in the track's nearest visible frame (0: held)")
@@ -299,7 +302,8 @@ def _optim_config(a):
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target,
-        dc_field_temporal=a.dc_field_temporal, carry_k=a.carry_k, carry_reach=a.carry_reach,
+        dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
+        carry_k=a.carry_k, carry_reach=a.carry_reach,
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,

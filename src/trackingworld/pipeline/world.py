@@ -34,6 +34,7 @@ from trackingworld.optim.densify import (
     thinned_observations,
 )
 from trackingworld.optim.depth_movers import depth_movers, less_fields, log_depth_ratios
+from trackingworld.optim.edge_prior import inner_prior
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.ratio_field import fit_log_fields
@@ -413,7 +414,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["static_refit"] = int(len(refit))
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
-        target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, np.flatnonzero(~dynamic), poses, K,
+        D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
+        if cfg.dc_edge_sigma_px > 0 and len(dyn):
+            D3 = D.copy()
+            D3[dyn] = sample_maps(inner_prior(prior, uv[dyn], vis[dyn], cfg.dc_edge_sigma_px), uv[dyn], vis[dyn])
+        target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, np.flatnonzero(~dynamic), poses, K,
                                prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px,
                                                  cfg.dc_field_temporal),
                                thinned)
@@ -632,6 +637,9 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
                           ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS), ("stage3_linear", STAGE3_LINEAR)):
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
+    if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
+        raise InputError(f"slip_run {cfg.optim.slip_run} / slip_px {cfg.optim.slip_px} / slip_window "
+                         f"{cfg.optim.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg = cfg.optim
