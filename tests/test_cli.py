@@ -117,6 +117,8 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
     for bad in (dict(slip_run=1.5), dict(slip_run=-0.1), dict(slip_px=0.0), dict(slip_window=0)):
         with pytest.raises(InputError, match="the run's fraction is from 0 to 1"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
+    with pytest.raises(InputError, match="dc_edge_sigma_px -1.0: a Gaussian's width"):
+        run_trackingworld(inp, None, RunConfig(optim=OptimConfig(dc_edge_sigma_px=-1.0)))
 
 
 def test_video_input(tiny_scene, tmp_path):

@@ -640,6 +640,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
         raise InputError(f"slip_run {cfg.optim.slip_run} / slip_px {cfg.optim.slip_px} / slip_window "
                          f"{cfg.optim.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
+    if cfg.optim.dc_edge_sigma_px < 0:
+        raise InputError(f"dc_edge_sigma_px {cfg.optim.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg = cfg.optim
