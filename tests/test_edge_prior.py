@@ -1,4 +1,4 @@
-"""Stage 3's depth target at a mover's rim: the prior averaged over the object's inner pixels (optim.edge_prior)."""
+"""The prior at a depth edge read from each side's own pixels (optim.edge_prior)."""
 
 import cv2
 import numpy as np
@@ -24,6 +24,23 @@ def test_a_rim_pixel_reads_its_objects_depth_not_the_blurred_background():
     np.testing.assert_allclose(new[inner], 2.0, rtol=0.01)
     # pixels no track covers, far from the box, keep the prior exactly
     np.testing.assert_array_equal(out[0, :5], prior[0, :5])
+
+
+def test_the_wall_beside_the_box_reads_the_walls_depth_from_the_walls_tracks():
+    H, W = 60, 80
+    depth = np.full((H, W), 5.0)
+    depth[20:40, 25:55] = 2.0
+    prior = cv2.GaussianBlur(depth.astype(np.float32), (0, 0), 2.0)[None]
+    ys, xs = np.mgrid[0:H, 0:W]
+    wall = depth[ys, xs] == 5.0  # the static side: every wall pixel is a track
+    uv = np.stack([xs[wall], ys[wall]], 1)[:, None].astype(np.float32)
+    out = inner_prior(prior, uv, np.ones((len(uv), 1), bool), 1.5)
+    ring = wall & (np.abs(ys - 29.5) <= 10.5) & (np.abs(xs - 39.5) <= 15.5)  # the wall's pixels touching the box
+    assert np.median(prior[0][ring]) < 4.5  # the raw prior pulls them 10% or more toward the box
+    assert np.abs(out[0][ring] / 5.0 - 1).max() < 0.05
+    assert np.all(out[0][~wall] < 5.0)  # the box's pixels are not filled from the wall (no wall track there)...
+    np.testing.assert_array_equal(out[0][depth == 2.0][prior[0][depth == 2.0] < 2.001],
+                                  prior[0][depth == 2.0][prior[0][depth == 2.0] < 2.001])  # ...deep inside at all
 
 
 def test_hidden_tracks_do_not_count_and_no_track_leaves_the_prior():

@@ -116,11 +116,13 @@ class OptimConfig:
     dc_field_cells: tuple[int, int] = (8, 6)
     dc_field_smooth: float = 0.01
     dc_field_margin_px: float = 4.0
-    # (not in the paper) the prior under stage 3's target, on the dynamic tracks: averaged in log over the pixels
-    # the dynamic tracks cover, weighted down where the log prior is steep, with a Gaussian of this many px
-    # (optim.edge_prior): a mover's rim pixels read its inner depth, not the prior's blur with the background.
-    # 0: the prior as sampled. Ten synthetic scenes: world accuracy +1.9, dynamic +3.3 on the mean, better on all ten,
-    # track depth AbsRel lower on all ten (sigma 2: the same accuracy, depth a little worse; 3: +1.0 / +2.0) (README)
+    # (not in the paper) the prior the depth terms read, on each side of a depth edge from that side's own tracks:
+    # averaged in log over the pixels the static tracks (stages 1-2) / the dynamic tracks (stage 3's target) cover,
+    # weighted down where the log prior is steep, with a Gaussian of this many px (optim.edge_prior): a mover's rim
+    # reads its inner depth and the background beside it the background's, not the prior's blur of the two. The
+    # video depth keeps the raw prior. 0: the prior as sampled. Ten synthetic scenes (README): stage 3's side world
+    # accuracy +1.9, dynamic +3.3 on the mean, better on all ten; the static side then +0.5 (static +0.2 to +1.7 on
+    # all ten); track and video depth AbsRel lower on all ten (sigma 2: the same accuracy, depth a little worse)
     dc_edge_sigma_px: float = 1.5
     # ... and the weight that holds each frame's field shape near the previous frame's (ratio_field.fit_log_fields;
     # 0: every frame on its own). Not in the paper: the prior's warp drifts slowly, and under a moving object

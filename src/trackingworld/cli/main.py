@@ -245,8 +245,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="with --dc-target field: hold each frame's field near its neighbours' in time with this "
                         "weight (0: each frame on its own, as before)")
     g.add_argument("--dc-edge-sigma", type=float, default=d.dc_edge_sigma_px, metavar="PX",
-                   help="(not in the paper) stage 3's prior on the dynamic tracks averaged over their pixels away from "
-                        "the prior's blurred object rims, with a Gaussian of this many px (0: the prior as sampled)")
+                   help="(not in the paper) the prior on the static tracks (stages 1-2) and on the dynamic tracks "
+                        "(stage 3) averaged over each side's own pixels away from the prior's blurred depth edges, "
+                        "with a Gaussian of this many px (0: the prior as sampled)")
     g.add_argument("--carry-k", type=int, default=d.carry_k,
                    help="hidden frames of dynamic tracks follow the motion of this many nearby tracks visible both "
                         "there and in the track's nearest visible frame (0: held)")

@@ -1,4 +1,4 @@
-"""The depth prior on the dynamic objects away from their edges: stage 3's depth target at an object's rim.
+"""The depth prior away from its blurred depth edges, each side of an edge read from its own tracks.
 
 A monocular depth prior blurs across depth edges, so a mover's rim pixels read part of the background's depth
 (the synthetic priors: `hard` seed 0, dynamic ground-truth tracks within 2 px of their object's edge have a
@@ -11,6 +11,10 @@ leak in), each pixel weighted down by the log prior's gradient there (``exp(-(|g
 blurred edge is where the gradient is steep), with a Gaussian of ``sigma`` px (normalised convolution). A rim
 pixel then reads its object's inner depth; an inner pixel about its own, smoothed over ``sigma`` px. Pixels
 the tracks do not cover keep the prior.
+
+The pipeline runs it twice (``OptimConfig.dc_edge_sigma_px``): over the static tracks for stages 1-2 (the
+background beside a mover reads the background's depth, not the blur toward the mover's) and over the dynamic
+tracks for stage 3's target.
 """
 
 from __future__ import annotations

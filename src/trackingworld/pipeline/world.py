@@ -204,9 +204,13 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     qf = tr.queries[:, 0].astype(np.int64)
     info: dict = {"tracks": int(N)}
     with tm("labels"):
-        D = sample_maps(prior, tr.tracks, vis)  # float32 metres, 1 where hidden (never read)
+        D_raw = sample_maps(prior, tr.tracks, vis)  # float32 metres, 1 where hidden (never read)
         labels = label_tracks(tr.tracks, vis, qf, masks, cfg.mask_margin_px)
         static_idx = np.flatnonzero(labels == STATIC)
+        D = D_raw  # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior)
+        if cfg.dc_edge_sigma_px > 0 and len(static_idx):
+            D = D_raw.copy()
+            D[static_idx] = _edge_free(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
         obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
@@ -417,7 +421,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
         if cfg.dc_edge_sigma_px > 0 and len(dyn):
             D3 = D.copy()
-            D3[dyn] = sample_maps(inner_prior(prior, uv[dyn], vis[dyn], cfg.dc_edge_sigma_px), uv[dyn], vis[dyn])
+            D3[dyn] = _edge_free(prior, uv, vis, dyn, cfg.dc_edge_sigma_px)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, np.flatnonzero(~dynamic), poses, K,
                                prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px,
                                                  cfg.dc_field_temporal),
@@ -442,8 +446,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["stage3_observations"] = int(obs.sum())
 
     with tm("video_depth"):
-        n, t, ratio = reference_ratios(None, uv, vis, xyz, D, poses)
-        depth = ratio_maps(t, uv[n, t], D[n, t], ratio, prior.astype(np.float64), K) * prior
+        # the raw prior here: the ratios scale the raw prior's maps
+        n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses)
+        depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "visible": vis, "info": info}
 
@@ -469,6 +474,12 @@ def _fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, devic
     visible frames, in float32 and in chunks (:func:`_chunks`)."""
     for c, vf in _chunks(tracks, vis, cfg.static_fit_frames):
         xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device, iters)[3].cpu().numpy()[:, None]
+
+
+def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float) -> np.ndarray:
+    """``[len(idx),T]`` metres: the prior at tracks ``idx`` averaged over those tracks' own pixels away from the
+    depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the other's blur."""
+    return sample_maps(inner_prior(prior, uv[idx], vis[idx], sigma), uv[idx], vis[idx])
 
 
 def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
