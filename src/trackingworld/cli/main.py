@@ -269,6 +269,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--stage2-reject", action=argparse.BooleanOptionalAction, default=d.stage2_reject,
+                   help="(not in the paper) stage 2 solved again without the observations whose offset reached "
+                        "epsilon (a moving object's pull on the poses); --no-stage2-reject: one solve, the paper")
     g.add_argument("--static-outliers", action=argparse.BooleanOptionalAction, default=d.static_outliers,
                    help="(not in the paper) a static track's observations whose offset reaches epsilon are left out "
                         "of its point's final fit and marked not visible (frames where its 2D track left the point)")
@@ -298,7 +301,7 @@ def _optim_config(a):
 
     return OptimConfig(
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
-        test_stat=a.test_stat, static_outliers=a.static_outliers,
+        test_stat=a.test_stat, static_outliers=a.static_outliers, stage2_reject=a.stage2_reject,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,

@@ -75,6 +75,10 @@ class BAProblem:
             0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap, not cfg.no_offsets,
             cfg.dc_space == "log")
 
+    def subset(self, keep: torch.Tensor) -> BAProblem:
+        """The same problem with only the observations ``keep`` [M] bool (points and frames numbered as before)."""
+        return replace(self, pt=self.pt[keep], fr=self.fr[keep], uv=self.uv[keep], depth=self.depth[keep])
+
     def with_focal_scale(self, phi) -> BAProblem:
         """The same problem with fx and fy multiplied by ``exp(phi)`` (phi a float or a 0-d tensor)."""
         s = torch.exp(torch.as_tensor(phi, dtype=self.K.dtype, device=self.K.device))

@@ -81,6 +81,28 @@ def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
     return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
 
 
+def solve_stage2(R, t, X, p: stage2.BAProblem, cfg: OptimConfig, log=None):
+    """Stage 2 by the configured solver (the paper's Adam schedule, or the structured Levenberg-Marquardt) from
+    world-to-camera poses R [T,3,3], t [T,3] and points X [N,3] world metres; with ``cfg.stage2_reject`` (not in
+    the paper) solved again without the observations whose offset reached epsilon: nearly every residual sits in
+    the L1 part of the offsets' kernel, where a moving object's observations pull on the poses as hard as the
+    static ones, and all in one direction. Returns (solution, the problem solved last, observations rejected)."""
+    def solve(R, t, X, p):
+        if cfg.solver == "adam":
+            return stage2.solve_adam(R, t, X, p, cfg.adam_iters[1], cfg.adam_lr, log)
+        return stage2.solve_lm(R, t, X, p, cfg.lm_iters, cfg.lm_tol, log)
+
+    sol = solve(R, t, X, p)
+    if not (cfg.stage2_reject and p.offsets):
+        return sol, p, 0
+    inlier = stage2.offset_norms(sol.R, sol.t, sol.X, p) < cfg.epsilon
+    rejected = int((~inlier).sum())
+    if rejected:
+        p = p.subset(inlier)
+        sol = solve(sol.R, sol.t, sol.X, p)
+    return sol, p, rejected
+
+
 def _static_points(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device, iters: int = 6):
     """Each track's best static point with the poses held (stage 2's objective, offsets eliminated; ``iters``
     Gauss-Newton steps). Returns the problem, the poses in ``dtype`` and X [n,3] world (a tensor)."""
@@ -237,23 +259,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         rounds = (1 if cfg.solver == "adam" else FOCAL_ROUNDS) if refine_focal else 1
         history = [f_start]
         start = None  # the solution with the starting focal length, kept in case the refinement does not settle
+        p_all = p  # every observation: the moving-background test reads them all
+        rejected = 0
         for _ in range(rounds):
-            if cfg.solver == "adam":
-                sol = stage2.solve_adam(R, t, X, p, cfg.adam_iters[1], cfg.adam_lr, log)
-            else:
-                sol = stage2.solve_lm(R, t, X, p, cfg.lm_iters, cfg.lm_tol, log)
+            sol, p, rejected = solve_stage2(R, t, X, p_all, cfg, log)
             R, t, X = sol.R, sol.t, sol.X
-            moving_s2 = _moving(R, t, X, p, cfg)
+            moving_s2 = _moving(R, t, X, p_all, cfg)
             if not refine_focal:
                 break
             if start is None:
                 start = (K, p, R, t, X, moving_s2)
             fsol = stage2.refine_focal(sol, p, moving_s2, iters=cfg.lm_iters, tol=min(cfg.lm_tol, 1e-6), log=log)
             K = fsol.K.cpu().numpy()
-            p = replace(p, K=fsol.K)
+            p, p_all = replace(p, K=fsol.K), replace(p_all, K=fsol.K)
             R, t = fsol.R, fsol.t
-            X = stage2.fit_points(R, t, p)  # every control track against the new focal length, poses held
-            moving_s2 = _moving(R, t, X, p, cfg)
+            X = stage2.fit_points(R, t, p_all)  # every control track against the new focal length, poses held
+            moving_s2 = _moving(R, t, X, p_all, cfg)
             history.append(focal_length(K))
             if cfg.verbose:
                 print(f"[stage2] focal length, round {len(history) - 1}: {history[-2]:.1f} -> {history[-1]:.1f} px",
@@ -267,7 +288,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if cfg.verbose:
                 print(f"[stage2] the focal length did not settle ({' -> '.join(f'{f:.0f}' for f in history)} px): "
                       f"kept {f_start:.1f} px", file=sys.stderr, flush=True)
-        info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p))}
+        # the loss of the problem solved last (without the rejected observations)
+        info["stage2"] = {"loss_init": loss0, "loss": float(stage2.loss(R, t, X, p)), "rejected": rejected}
         if refine_focal:
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
