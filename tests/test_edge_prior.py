@@ -38,9 +38,8 @@ def test_the_wall_beside_the_box_reads_the_walls_depth_from_the_walls_tracks():
     ring = wall & (np.abs(ys - 29.5) <= 10.5) & (np.abs(xs - 39.5) <= 15.5)  # the wall's pixels touching the box
     assert np.median(prior[0][ring]) < 4.5  # the raw prior pulls them 10% or more toward the box
     assert np.abs(out[0][ring] / 5.0 - 1).max() < 0.05
-    assert np.all(out[0][~wall] < 5.0)  # the box's pixels are not filled from the wall (no wall track there)...
-    np.testing.assert_array_equal(out[0][depth == 2.0][prior[0][depth == 2.0] < 2.001],
-                                  prior[0][depth == 2.0][prior[0][depth == 2.0] < 2.001])  # ...deep inside at all
+    # the box's pixels beyond the Gaussian's reach (7 px) of every wall track keep the prior exactly
+    np.testing.assert_array_equal(out[0, 27:33, 32:48], prior[0, 27:33, 32:48])
 
 
 def test_hidden_tracks_do_not_count_and_no_track_leaves_the_prior():
