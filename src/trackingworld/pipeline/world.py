@@ -231,8 +231,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         static_idx = np.flatnonzero(labels == STATIC)
         D = D_raw  # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior)
         if cfg.dc_edge_sigma_px > 0 and len(static_idx):
-            D = D_raw.copy()
-            D[static_idx] = _edge_free(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px)
+            D = _edge_free(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D_raw)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
         obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
@@ -442,8 +441,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         dyn = np.flatnonzero(dynamic)
         D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
         if cfg.dc_edge_sigma_px > 0 and len(dyn):
-            D3 = D.copy()
-            D3[dyn] = _edge_free(prior, uv, vis, dyn, cfg.dc_edge_sigma_px)
+            D3 = _edge_free(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
         target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, np.flatnonzero(~dynamic), poses, K,
                                prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px,
                                                  cfg.dc_field_temporal),
@@ -498,10 +496,18 @@ def _fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, devic
         xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device, iters)[3].cpu().numpy()[:, None]
 
 
-def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float) -> np.ndarray:
-    """``[len(idx),T]`` metres: the prior at tracks ``idx`` averaged over those tracks' own pixels away from the
-    depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the other's blur."""
-    return sample_maps(inner_prior(prior, uv[idx], vis[idx], sigma), uv[idx], vis[idx])
+def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float,
+               base: np.ndarray) -> np.ndarray:
+    """``[N,T]`` metres: at the tracks ``idx`` the prior averaged over those tracks' own pixels away from the
+    depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the other's blur; ``base``
+    [N,T] at the others. uv [N,T,2] px, vis [N,T]. The tracks are selected through the visibility rather than
+    copied out (120 frames: 1.8 -> 0.7 s)."""
+    member = np.zeros(len(vis), bool)
+    member[idx] = True
+    seen = vis & member[:, None]
+    out = sample_maps(inner_prior(prior, uv, seen, sigma), uv, seen)
+    out[~member] = base[~member]
+    return out
 
 
 def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
