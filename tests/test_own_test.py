@@ -38,6 +38,32 @@ def test_a_track_seen_once_takes_the_verdict_of_the_voters_on_its_side_of_a_dept
     np.testing.assert_array_equal(out, dynamic[once])
 
 
+def test_the_colour_weighted_vote_reads_the_side_a_blurred_prior_hides():
+    """Voters on a wall (static, grey 200, 5 m) beside a box (dynamic, grey 60, 2 m). Tracks seen once on the wall
+    right beside the box (inside the coarse masks, so lifted with the raw prior, which the blur across the edge
+    puts at 2.2 m) are nearer the box's voters in 3D: the vote by distance calls them dynamic; weighted by colour
+    as well, they take the wall's verdict, while those on the box stay dynamic."""
+    grid = np.stack(np.meshgrid(np.arange(0, 40, 2.0), np.arange(0, 40, 2.0)), -1).reshape(-1, 2)
+    box = grid[:, 0] >= 20
+    d_grid = np.where(box, 2.0, 5.0)
+    once_uv = np.array([[17.0, 9.0], [17.0, 25.0], [23.0, 9.0], [23.0, 25.0]])  # wall, wall, box, box
+    uv = np.concatenate([grid, once_uv])[:, None].astype(np.float32)
+    D = np.concatenate([d_grid, [2.2, 2.2, 2.0, 2.0]])[:, None].astype(np.float32)
+    N = len(uv)
+    dynamic = np.concatenate([box, [True, True, True, True]])
+    grey = np.concatenate([np.where(box, 60, 200), [200, 200, 60, 60]])
+    colours = np.repeat(grey[:, None], 3, 1).astype(np.uint8)
+    once, voters = np.arange(len(grid), N), np.arange(len(grid))
+    vis, qf = np.ones((N, 1), bool), np.zeros(N, np.int64)
+    by_distance = world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16)
+    by_colour = world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 10.0)
+    assert by_distance[:2].all()  # the blur puts the wall's tracks with the box
+    np.testing.assert_array_equal(by_colour, [False, False, True, True])
+    # sigma 0 is the vote by distance alone
+    np.testing.assert_array_equal(world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 0.0),
+                                  by_distance)
+
+
 def _wall_scene():
     """A slanted wall (z 4-6 m) seen by a camera sliding 5 cm a frame along x; every pixel of frame 0 tracked.
     The first track of each 8 px cell in REGION (a stage-2 representative) slips from frame 4 on (6 px a frame:

@@ -56,11 +56,16 @@ def cell_cap_mask(uv: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, cell
 
 
 def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, query_uv: np.ndarray,
-                    query_depth: np.ndarray, K: np.ndarray, k: int = 4, eps: float = 1e-3) -> np.ndarray:
+                    query_depth: np.ndarray, K: np.ndarray, k: int = 4, eps: float = 1e-3,
+                    ref_colour: np.ndarray | None = None, query_colour: np.ndarray | None = None,
+                    colour_sigma: float = 0.0) -> np.ndarray:
     """Inverse-distance-weighted ratio ``[Q]`` at query pixels of one frame.
 
     ref_uv [R,2] px, ref_depth [R] prior metres, ref_ratio [R]; query_uv [Q,2], query_depth [Q]. Neighbours
     are the k nearest references in the image, weights 1 / (3D distance of the prior-lifted points + eps).
+    With ``colour_sigma`` > 0 the weights are also multiplied by ``exp(-dc^2 / (2 sigma^2))``, dc the largest
+    RGB difference (grey levels) between ``query_colour [Q,3]`` and ``ref_colour [R,3]``: a joint-bilateral
+    weight, for where the prior-lifted distance cannot tell the two sides of an edge apart (its blur).
     """
     if len(ref_uv) == 0:
         return np.ones(len(query_uv))
@@ -71,6 +76,9 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
     Q = unproject(ref_uv, ref_depth, K)
     d = np.linalg.norm(P[:, None] - Q[idx], axis=-1)
     w = 1.0 / (d + eps)
+    if colour_sigma > 0:
+        dc = np.abs(query_colour[:, None].astype(np.float32) - ref_colour[idx].astype(np.float32)).max(-1)
+        w = w * np.exp(-0.5 * (dc / colour_sigma) ** 2) + 1e-12  # every weight tiny: the plain mean
     return (w * ref_ratio[idx]).sum(1) / w.sum(1)
 
 

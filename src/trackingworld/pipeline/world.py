@@ -174,20 +174,26 @@ def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) 
     return out
 
 
-def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int) -> np.ndarray:
+def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.ndarray | None = None,
+                   colour_sigma: float = 0.0) -> np.ndarray:
     """``[n]`` bool: dynamic or not, for the tracks ``once`` [n] (indices) seen in their query frame only, by the
     inverse-distance-weighted vote of the ``k`` image-nearest ``voters`` (indices of tested tracks) visible in
     that frame, each voting its ``dynamic`` flag ([N] bool), weights 1 / 3D distance of the points lifted with
-    the prior ``D`` [N,T] metres (a voter across a depth edge barely counts). uv [N,T,2] px, vis [N,T],
-    qf [N] query frames, K [3,3]. A track with no voter in its frame keeps its flag."""
+    the prior ``D`` [N,T] metres (a voter across a depth edge barely counts), times a Gaussian of width
+    ``colour_sigma`` grey levels in the RGB difference of the tracks' query-frame ``colours`` [N,3] when both
+    are given (densify.propagate_ratio). uv [N,T,2] px, vis [N,T], qf [N] query frames, K [3,3]. A track with no
+    voter in its frame keeps its flag."""
     out = dynamic[once].copy()
     voters_t = np.ascontiguousarray(vis[voters].T)
+    use_colour = colours is not None and colour_sigma > 0
     for q in np.unique(qf[once]):
         sel = np.flatnonzero(qf[once] == q)
         who, d = once[sel], voters[voters_t[q]]
         if len(d):
             out[sel] = propagate_ratio(uv[d, q], D[d, q], dynamic[d].astype(np.float64), uv[who, q], D[who, q], K,
-                                       k) >= 0.5
+                                       k, ref_colour=colours[d] if use_colour else None,
+                                       query_colour=colours[who] if use_colour else None,
+                                       colour_sigma=colour_sigma if use_colour else 0.0) >= 0.5
     return out
 
 
@@ -211,9 +217,12 @@ def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
 
 
 def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarray, cfg: OptimConfig,
-             timings: dict, device: str = "cpu", seed: int = 0, refine_focal: bool = False) -> dict:
+             timings: dict, device: str = "cpu", seed: int = 0, refine_focal: bool = False,
+             colours: np.ndarray | None = None) -> dict:
     """Stages 1-3 on dense tracks ``tr`` (processing resolution), the depth prior ``[T,h,w]`` metres, the
-    coarse masks ``[T,h,w]`` and K ``[3,3]``; ``refine_focal``: the focal length is refined in stage 2. Returns a
+    coarse masks ``[T,h,w]`` and K ``[3,3]``; ``refine_focal``: the focal length is refined in stage 2;
+    ``colours`` [N,3] uint8: each track's RGB at its query pixel (the vote of the tracks seen once; None: that
+    vote by distance alone). Returns a
     dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world metres, ``is_dynamic [N]``, ``labels [N]`` (mask
     labels), ``depth [T,h,w]`` consistent video depth, ``K [3,3]`` (refined or as given) and ``info`` (losses,
     counts)."""
@@ -413,7 +422,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # query frame and VOTE_CELL_PX square, prior-lifted 3D distance), the depth-mover test's included
             multi = np.flatnonzero(~single)
             voters = multi[cell_representatives(tr.queries[multi], VOTE_CELL_PX)]
-            dynamic[once] = vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, cfg.idw_k)
+            colour = colours is not None and cfg.vote_colour_sigma > 0
+            dynamic[once] = vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K,
+                                           cfg.vote_k if colour else cfg.idw_k, colours, cfg.vote_colour_sigma)
             info["dynamic"] = int(dynamic.sum())
 
     if cfg.static_outliers and p.offsets:
@@ -679,6 +690,9 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
         raise InputError(f"slip_run {cfg.optim.slip_run} / slip_px {cfg.optim.slip_px} / slip_window "
                          f"{cfg.optim.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
+    if cfg.optim.vote_colour_sigma < 0 or cfg.optim.vote_k < 1:
+        raise InputError(f"vote_colour_sigma {cfg.optim.vote_colour_sigma} / vote_k {cfg.optim.vote_k}: the colour "
+                         "weight's width is 0 (off) or more, the voters 1 or more")
     if cfg.optim.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {cfg.optim.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     mode = cfg.optim.refine_focal
@@ -692,7 +706,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
         if optim_cfg.verbose:
             print("[depth_movers] off, [static_refit] off: --depth none gives no depth to compare with",
                   file=sys.stderr, flush=True)
-    out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine)
+    out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine,
+                   sample_colors(inp.frames, tr.queries))
     if report is not None:
         report.update(out["info"])
     K_in = inp.K_in.copy()
