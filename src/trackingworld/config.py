@@ -188,8 +188,8 @@ class OptimConfig:
     # ... and that vote, for a track seen once, weighs each voter also by a Gaussian of this width (grey levels) in
     # the RGB difference of their query-frame colours, over its vote_k image-nearest voters (not in the paper; 0:
     # the prior-lifted 3D distance alone over idw_k voters). Beside a mover the prior's blur puts a background
-    # pixel near the mover's depth; its colour is the background's. Four synthetic scenes: static kept static
-    # +0.2 to +1.1 and dynamic recall +0.1 to +0.8 together (README)
+    # pixel near the mover's depth; its colour is the background's. Ten synthetic scenes: static kept static
+    # +0.2 to +1.1 on each, dynamic recall +0.36 on the mean, world accuracy within 0.1 (docs/lifting.md, item 4)
     vote_colour_sigma: float = 10.0
     vote_k: int = 16
     static_outliers: bool = True
