@@ -85,9 +85,11 @@ def test_stage3_options_reach_the_config():
 
     cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--carry-k", "4", "--carry-reach", "1.5",
                                                    "--ts-order", "1", "--stage3-linear", "amg", "--slip-run", "0.5",
-                                                   "--slip-px", "3", "--dc-edge-sigma", "0"]))
+                                                   "--slip-px", "3", "--dc-edge-sigma", "0",
+                                                   "--vote-colour-sigma", "0", "--vote-k", "5"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
+    assert (cfg.vote_colour_sigma, cfg.vote_k) == (0.0, 5)
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
@@ -119,6 +121,9 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     with pytest.raises(InputError, match="dc_edge_sigma_px -1.0: a Gaussian's width"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(dc_edge_sigma_px=-1.0)))
+    for bad in (dict(vote_colour_sigma=-1.0), dict(vote_k=0)):
+        with pytest.raises(InputError, match="the colour weight's width is 0 \\(off\\) or more"):
+            run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
 
 
 def test_video_input(tiny_scene, tmp_path):

@@ -63,9 +63,10 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
 
     ref_uv [R,2] px, ref_depth [R] prior metres, ref_ratio [R]; query_uv [Q,2], query_depth [Q]. Neighbours
     are the k nearest references in the image, weights 1 / (3D distance of the prior-lifted points + eps).
-    With ``colour_sigma`` > 0 the weights are also multiplied by ``exp(-dc^2 / (2 sigma^2))``, dc the largest
-    RGB difference (grey levels) between ``query_colour [Q,3]`` and ``ref_colour [R,3]``: a joint-bilateral
-    weight, for where the prior-lifted distance cannot tell the two sides of an edge apart (its blur).
+    With ``colour_sigma`` > 0 and both colours given the weights are also multiplied by ``exp(-dc^2 / (2
+    sigma^2))``, dc the largest RGB difference (grey levels) between ``query_colour [Q,3]`` and ``ref_colour
+    [R,3]``: a joint-bilateral weight, for where the prior-lifted distance cannot tell the two sides of an edge
+    apart (its blur).
     """
     if len(ref_uv) == 0:
         return np.ones(len(query_uv))
@@ -76,7 +77,7 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
     Q = unproject(ref_uv, ref_depth, K)
     d = np.linalg.norm(P[:, None] - Q[idx], axis=-1)
     w = 1.0 / (d + eps)
-    if colour_sigma > 0:
+    if colour_sigma > 0 and ref_colour is not None and query_colour is not None:
         dc = np.abs(query_colour[:, None].astype(np.float32) - ref_colour[idx].astype(np.float32)).max(-1)
         w = w * np.exp(-0.5 * (dc / colour_sigma) ** 2) + 1e-12  # every weight tiny: the plain mean
     return (w * ref_ratio[idx]).sum(1) / w.sum(1)

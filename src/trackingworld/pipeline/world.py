@@ -185,15 +185,14 @@ def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np
     voter in its frame keeps its flag."""
     out = dynamic[once].copy()
     voters_t = np.ascontiguousarray(vis[voters].T)
-    use_colour = colours is not None and colour_sigma > 0
     for q in np.unique(qf[once]):
         sel = np.flatnonzero(qf[once] == q)
         who, d = once[sel], voters[voters_t[q]]
         if len(d):
             out[sel] = propagate_ratio(uv[d, q], D[d, q], dynamic[d].astype(np.float64), uv[who, q], D[who, q], K,
-                                       k, ref_colour=colours[d] if use_colour else None,
-                                       query_colour=colours[who] if use_colour else None,
-                                       colour_sigma=colour_sigma if use_colour else 0.0) >= 0.5
+                                       k, ref_colour=None if colours is None else colours[d],
+                                       query_colour=None if colours is None else colours[who],
+                                       colour_sigma=colour_sigma) >= 0.5
     return out
 
 
@@ -706,8 +705,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
         if optim_cfg.verbose:
             print("[depth_movers] off, [static_refit] off: --depth none gives no depth to compare with",
                   file=sys.stderr, flush=True)
-    out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine,
-                   sample_colors(inp.frames, tr.queries))
+    colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the tracks seen once
+    out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine, colors)
     if report is not None:
         report.update(out["info"])
     K_in = inp.K_in.copy()
@@ -718,6 +717,6 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     depth = resize_stack(out["depth"].astype(np.float32), W, H, cv2.INTER_LINEAR)
     return Result(
         tracks_2d=inp.to_input_pixels(tr.tracks), visible=out["visible"], tracks_3d=out["xyz"], query_frame=qt,
-        is_dynamic=out["is_dynamic"], colors=sample_colors(inp.frames, tr.queries), poses_c2w=out["poses_c2w"],
+        is_dynamic=out["is_dynamic"], colors=colors, poses_c2w=out["poses_c2w"],
         intrinsics=K_in, depth=depth,
     )
