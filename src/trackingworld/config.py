@@ -140,6 +140,10 @@ class OptimConfig:
     # ... those farther than this (metres, and than twice the nearest one's distance) left out: a donor on
     # another object (chosen on ten synthetic scenes; the scale is the depth prior's, metres for metric priors)
     carry_reach: float = 0.3
+    # ... and near in image motion too: a difference of 1 px per frame in 2D velocity counts as the distance two
+    # tracks at the dynamic tracks' median depth drift apart in this many frames (0: by 3D position alone). Not in
+    # the authors' code: objects passing each other lend their motion to each other's hidden tracks otherwise
+    carry_motion_frames: float = 8.0
     # a track inside the sure-dynamic mask region is called static only when its static fit also holds in
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.

@@ -254,6 +254,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--carry-reach", type=float, default=d.carry_reach, metavar="M",
                    help="with --carry-k: leave out the tracks farther than this many metres (and than twice the "
                         "nearest one's distance) from the hidden track, on another object")
+    g.add_argument("--carry-motion", type=float, default=d.carry_motion_frames, metavar="FRAMES",
+                   help="with --carry-k: nearness also in 2D velocity, 1 px/frame of difference counting as the "
+                        "drift of this many frames at the dynamic tracks' median depth (0: 3D distance alone)")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
@@ -311,7 +314,7 @@ def _optim_config(a):
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target,
         dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
-        carry_k=a.carry_k, carry_reach=a.carry_reach,
+        carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,

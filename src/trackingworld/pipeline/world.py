@@ -470,8 +470,16 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             if follow.any():
                 xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
             # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
-            xyz[dyn] = (carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach) if cfg.carry_k > 0
-                        else hold_invisible(xyz[dyn], vis[dyn]))
+            if cfg.carry_k > 0:
+                # the image motion's weight in the donors' search: the distance two tracks drift apart in
+                # carry_motion_frames frames at the dynamic tracks' median depth, per px per frame of difference
+                few = dyn[:: max(1, len(dyn) // 4000)]
+                z = D3[few][vis[few]]
+                scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
+                xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn],
+                                        motion_scale=scale)
+            else:
+                xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
             info["stage3_controls"] = int(len(ctrl))
             info["stage3_observations"] = int(obs.sum())
 
