@@ -30,18 +30,22 @@ def inner_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, sigma: float
                 grad: float = GRAD_LOG_PER_PX) -> np.ndarray:
     """``[T,H,W]`` float32 metres: the prior ``[T,H,W]`` averaged in log over the pixels covered by the tracks
     ``uv [n,T,2]`` px where visible (``vis [n,T]``), weighted by ``exp(-(|grad log prior| / grad)^2)`` with a
-    Gaussian of ``sigma`` px (module docstring); the prior itself where no track is near."""
+    Gaussian of ``sigma`` px (module docstring); the prior itself where no track is near. In float32 (log depth to
+    1e-7; 120 frames at 320x240 over 87k tracks: 0.55 -> 0.2 s): the covered pixels of every frame are marked in
+    one pass over the visible observations instead of a gather per frame."""
     T, H, W = prior.shape
+    n, t = np.nonzero(vis)
+    p = np.rint(uv[n, t]).astype(np.int64)
+    inside = (p[:, 0] >= 0) & (p[:, 0] < W) & (p[:, 1] >= 0) & (p[:, 1] < H)
+    support = np.zeros(T * H * W, np.float32)
+    support[(t[inside] * H + p[inside, 1]) * W + p[inside, 0]] = 1.0
+    support = support.reshape(T, H, W)
     out = np.empty((T, H, W), np.float32)
-    for t in range(T):
-        support = np.zeros((H, W), np.float64)
-        p = np.rint(uv[vis[:, t], t]).astype(np.int64)
-        inside = (p[:, 0] >= 0) & (p[:, 0] < W) & (p[:, 1] >= 0) & (p[:, 1] < H)
-        support[p[inside, 1], p[inside, 0]] = 1.0
-        log_d = np.log(np.maximum(prior[t].astype(np.float64), 1e-6))
-        g = np.hypot(cv2.Sobel(log_d, cv2.CV_64F, 1, 0, ksize=3), cv2.Sobel(log_d, cv2.CV_64F, 0, 1, ksize=3)) / 8
-        w = support * np.exp(-np.square(g / grad))
+    for f in range(T):
+        log_d = np.log(np.maximum(prior[f], 1e-6, dtype=np.float32))
+        g = cv2.magnitude(cv2.Sobel(log_d, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(log_d, cv2.CV_32F, 0, 1, ksize=3))
+        w = support[f] * np.exp(-np.square(g * np.float32(1 / (8 * grad))))
         num = cv2.GaussianBlur(w * log_d, (0, 0), sigma)
         den = cv2.GaussianBlur(w, (0, 0), sigma)
-        out[t] = np.where(den > MIN_SUPPORT, np.exp(num / np.maximum(den, 1e-12)), prior[t])
+        out[f] = np.where(den > MIN_SUPPORT, np.exp(num / np.maximum(den, np.float32(1e-12))), prior[f])
     return out
