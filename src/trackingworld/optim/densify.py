@@ -89,16 +89,24 @@ def thin_references(uv: np.ndarray, cell: float) -> np.ndarray:
         return np.arange(len(uv))
     c = np.floor(uv / cell).astype(np.int64)
     c -= c.min(0)
-    _, first = np.unique(c[:, 1] * (c[:, 0].max() + 1) + c[:, 0], return_index=True)
-    return first
+    nx = c[:, 0].max() + 1
+    key = c[:, 1] * nx + c[:, 0]
+    # the first index in each cell, in cell order (np.unique's return_index, without its sort: the same array)
+    first = np.full(int(key.max()) + 1, len(uv), np.int64)
+    first[key[::-1]] = np.arange(len(uv) - 1, -1, -1)  # written last = the smallest index
+    return first[first < len(uv)]
 
 
-def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float,
+                         member: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Visible observations of tracks ``uv [N,T,2]`` / ``vis [N,T]`` thinned to one per ``cell`` px square of
     each frame: (track [R], frame [R]) index arrays in frame order. What the video depth needs of a dense set
-    of tracks, whose visible observations grow faster than the frames times the pixels."""
+    of tracks, whose visible observations grow faster than the frames times the pixels. ``member`` [N] bool:
+    of those tracks only (the same as passing them copied out, in the same order, without the copy)."""
     n_out, t_out = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]: a frame's flags in one contiguous read
+    if member is not None:
+        vis_t = vis_t & member[None]
     for t in range(vis.shape[1]):
         v = np.flatnonzero(vis_t[t])
         v = v[thin_references(uv[v, t], cell)]

@@ -534,6 +534,10 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
     (track [R], frame [R], ratio [R] = camera z of its world point / prior depth)."""
     if tracks is None:
         n, t = thinned_observations(uv, vis, cell)
+    elif np.all(np.diff(tracks) > 0):  # ascending: selected through a mask, not copied out ([n,T] arrays)
+        member = np.zeros(len(vis), bool)
+        member[tracks] = True
+        n, t = thinned_observations(uv, vis, cell, member)
     else:
         n, t = thinned_observations(uv[tracks], vis[tracks], cell)
         n = tracks[n]
