@@ -172,3 +172,19 @@ def test_objects_passing_each_other_lend_no_motion_with_the_image_motion():
     assert err_p.mean() > 0.05  # B's motion mixed in
     assert err_m.max() < 1e-5  # A's alone: its translation, exactly
     assert np.array_equal(carry_hidden(xyz, vis, k=8, uv=_project(xyz), motion_scale=0.0), by_position)
+
+
+def test_a_track_seen_once_takes_the_velocity_of_its_nearest_tracks_in_3d():
+    from trackingworld.optim.hidden import _impute_velocity
+
+    rng = np.random.default_rng(5)
+    pos = np.concatenate([rng.normal(size=(20, 3)) * 0.05, rng.normal(size=(20, 3)) * 0.05 + [1.0, 0.0, 0.0]])
+    pos = np.concatenate([pos, [[0.01, 0.0, 0.0], [0.99, 0.0, 0.0]]])[None].astype(np.float32)  # [1,42,3]
+    vel = np.zeros((1, 42, 2), np.float32)
+    vel[0, :20] = [3.0, 0.0]  # the cluster at the origin moves right, the one at x = 1 m left
+    vel[0, 20:40] = [-2.0, 1.0]
+    known = np.ones((1, 42), bool)
+    known[0, 40:] = False  # the last two: seen once, one in each cluster
+    vis_t = np.ones((1, 42), bool)
+    _impute_velocity(vel, known, pos, vis_t)
+    assert np.allclose(vel[0, 40], [3.0, 0.0]) and np.allclose(vel[0, 41], [-2.0, 1.0])

@@ -19,7 +19,8 @@ Nearness at s is measured with the image motion too (``motion_scale`` > 0): the 
 ``[x(s), motion_scale * v(s)]``, v the track's 2D velocity at s (px per frame, to the previous frame or from the
 next one, where visible), so that of two objects passing each other at s the donors come from the one
 moving like the track. On `hard` scene 0 about half of the donors by 3D distance alone were on another object
-(movers crossing in front of the camera). A track or donor with no velocity at s is compared by position alone.
+(movers crossing in front of the camera). A track seen in no neighbouring frame of s (a track seen once) takes
+the inverse-distance mean velocity of its 4 nearest tracks at s in 3D that have one (``_impute_velocity``).
 """
 
 from __future__ import annotations
