@@ -111,40 +111,26 @@ def _impute_velocity(vel: np.ndarray, known: np.ndarray, pos: np.ndarray, vis_t:
 
 
 def donor_step(at_s: np.ndarray, at_t: np.ndarray, donors: np.ndarray, i: np.ndarray, k: int, reach: float,
-               max_donors: int = MAX_DONORS, motion_s: np.ndarray | None = None,
-               moving_s: np.ndarray | None = None) -> np.ndarray | None:
+               max_donors: int = MAX_DONORS, motion_s: np.ndarray | None = None) -> np.ndarray | None:
     """The step ``[n,3]`` float32 (metres) from frame s to frame t of the tracks ``i`` [n] (indices), the weighted
     mean of their ``k`` nearest ``donors`` (indices of tracks visible at both frames, evenly thinned to
     ``max_donors``) at s, by the module docstring's weights. ``at_s``, ``at_t`` [N,3] every track's position at
-    s and t (float32 world metres; only the donors' and, at s, the tracks' are read). ``motion_s`` [N,2] (metres)
-    with ``moving_s`` [N] bool where it is known: the scaled image velocity at s, searched with the position where
-    both the track and at least ``k`` donors have it. None without donors."""
+    s and t (float32 world metres; only the donors' and, at s, the tracks' are read). ``motion_s`` [N,2] (metres):
+    every track's scaled image velocity at s, searched with the position when given. None without donors."""
     if not len(donors):
         return None
     if len(donors) > max_donors:
         donors = donors[:: -(-len(donors) // max_donors)]
     kk = min(k, len(donors))
     moved = at_t[donors].astype(np.float64) - at_s[donors]  # [m,3] each donor's motion from s to t
-    everyone = np.arange(len(donors))
-    groups = [(np.arange(len(i)), everyone, False)]
+    feat, query = at_s[donors], at_s[i]
     if motion_s is not None:
-        with_v = np.flatnonzero(moving_s[donors])
-        if len(with_v) >= kk:
-            q = moving_s[i]
-            groups = [(np.flatnonzero(q), with_v, True), (np.flatnonzero(~q), everyone, False)]
-    out = np.empty((len(i), 3), np.float32)
-    for who, pool, use_v in groups:
-        if not len(who):
-            continue
-        feat, query = at_s[donors[pool]], at_s[i[who]]
-        if use_v:
-            feat = np.concatenate([feat, motion_s[donors[pool]]], 1)
-            query = np.concatenate([query, motion_s[i[who]]], 1)
-        d, j = cKDTree(feat.astype(np.float64), **TREE).query(query.astype(np.float64), k=kk, workers=1, eps=EPS)
-        d, j = d.reshape(len(who), kk), j.reshape(len(who), kk)
-        w = np.where(d <= np.maximum(reach, 2 * d[:, :1]), 1.0 / (d + SOFT_M), 0.0)
-        out[who] = np.einsum("ck,ckd->cd", w, moved[pool][j]) / w.sum(1, keepdims=True)
-    return out
+        feat = np.concatenate([feat, motion_s[donors]], 1)
+        query = np.concatenate([query, motion_s[i]], 1)
+    d, j = cKDTree(feat.astype(np.float64), **TREE).query(query.astype(np.float64), k=kk, workers=1, eps=EPS)
+    d, j = d.reshape(len(i), kk), j.reshape(len(i), kk)
+    w = np.where(d <= np.maximum(reach, 2 * d[:, :1]), 1.0 / (d + SOFT_M), 0.0)
+    return (np.einsum("ck,ckd->cd", w, moved[j]) / w.sum(1, keepdims=True)).astype(np.float32)
 
 
 def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.3,
@@ -167,12 +153,11 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]
     pos = np.ascontiguousarray(xyz.transpose(1, 0, 2), dtype=np.float32)  # [T,N,3]; per pair in float64 below
     seen = vis.any(1)
-    motion = moving = None
+    motion = None  # [T,N,2] metres: every visible track's scaled image velocity (known or imputed)
     if uv is not None and motion_scale > 0:
-        motion, moving = image_velocity(uv, vis)  # [T,N,2], [T,N]
-        _impute_velocity(motion, moving, pos, vis_t)
-        motion *= np.float32(motion_scale)  # metres
-        moving = vis_t
+        motion, known = image_velocity(uv, vis)
+        _impute_velocity(motion, known, pos, vis_t)
+        motion *= np.float32(motion_scale)
     gaps = searched_gaps(T)
     searched = np.zeros(T, bool)
     searched[gaps] = True
@@ -194,7 +179,7 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     def pair_step(pair):
         s, t, i = pair
         return donor_step(pos[s], pos[t], np.flatnonzero(vis_t[s] & vis_t[t]), i, k, reach, max_donors,
-                          None if motion is None else motion[s], None if moving is None else moving[s])
+                          None if motion is None else motion[s])
 
     with ThreadPoolExecutor(carry_threads() if threads is None else threads) as pool:
         for (_, t, i), st in zip(pairs, pool.map(pair_step, pairs), strict=True):
