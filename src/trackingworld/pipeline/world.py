@@ -158,6 +158,31 @@ def slip_runs(tracks, uv, D, vis, qf, px, K, R, t, cfg: OptimConfig, device) -> 
     return run, X
 
 
+def rescue_slipped(tracks, still, X, px, uv, D, vis, qf, K, R, t, cfg: OptimConfig, device):
+    """The run test (``optim.slip``, :func:`slip_runs` within ``px`` [n] pixels) of the ``tracks`` [n] (indices)
+    whose as-static test failed (``~still`` [n] bool): those with a long run (``cfg.slip_run``) that pass the
+    as-static test again over their run (a mover along its epipolar lines can hold a static point's pixels, not
+    its depth) become static in place (``still`` set, ``X`` [n,3] world metres their run's point). Returns
+    (visibility [N,T]: a copy where runs replaced tracks' visible frames, else ``vis`` itself; how many were
+    rescued). ``cfg.slip_run`` 0: off."""
+    if cfg.slip_run <= 0 or still.all():
+        return vis, 0
+    failed = np.flatnonzero(~still)
+    run, Xs = slip_runs(tracks[failed], uv, D, vis, qf, px[failed], K, R, t, cfg, device)
+    ok = np.flatnonzero(long_runs(run, vis[tracks[failed]], cfg.slip_run))
+    if not len(ok):
+        return vis, 0
+    who = tracks[failed[ok]]
+    out = vis.copy()
+    out[who] = run[ok]
+    holds = fits_static_chunked(who, uv, D, out, K, R, t, cfg, device)[0]
+    out[who[~holds]] = vis[who[~holds]]
+    ok = ok[holds]
+    still[failed[ok]] = True
+    X[failed[ok]] = Xs[ok]
+    return (out, len(ok)) if len(ok) else (vis, 0)
+
+
 def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) -> np.ndarray:
     """``[n,T]`` bool: the visible observations of the static ``tracks`` [n] (indices) whose offset from their
     point ``xyz[tracks, 0]`` (world metres) reaches epsilon with the poses (R, t world-to-camera) held: frames
@@ -330,22 +355,12 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             still, Xc, worst = fits_static_chunked(cand, uv, Dfit, vis, K, R, t, cfg, device)
             if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
                 still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
-            slipped = 0
-            if cfg.slip_run > 0 and not still.all():
-                # (not in the paper) a failed track that holds a static point around its query frame and then
-                # slips off it is that static point, seen in the run only (optim.slip)
-                failed = np.flatnonzero(~still)
-                px = np.full(len(failed), cfg.slip_px)
-                if cfg.mask_dynamic_px > 0:
-                    px[labels[cand[failed]] == DYNAMIC] = min(cfg.slip_px, cfg.mask_dynamic_px)
-                run, Xs = slip_runs(cand[failed], uv, Dfit, vis, qf, px, K, R, t, cfg, device)
-                ok = long_runs(run, vis[cand[failed]], cfg.slip_run)
-                if ok.any():
-                    vis = vis.copy()
-                    vis[cand[failed[ok]]] = run[ok]
-                    still[failed[ok]] = True
-                    Xc[failed[ok]] = Xs[ok]
-                slipped = int(ok.sum())
+            # (not in the paper) a failed track that holds a static point around its query frame and then
+            # slips off it is that static point, seen in the run only (optim.slip)
+            px = np.full(len(cand), cfg.slip_px)
+            if cfg.mask_dynamic_px > 0:
+                px[labels[cand] == DYNAMIC] = min(cfg.slip_px, cfg.mask_dynamic_px)
+            vis, slipped = rescue_slipped(cand, still, Xc, px, uv, Dfit, vis, qf, K, R, t, cfg, device)
             fixed = cand[still]
             dynamic[fixed] = False
             dynamic[cand[~still]] = True
@@ -395,9 +410,14 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # neighbour that slipped onto a mover does not take its neighbours with it
             suspects = multi_rest[voted[multi_rest]]
             if p.offsets and len(suspects):
-                still = fits_static_chunked(suspects, uv, Dfit, vis, K, R, t, cfg, device)[0]
+                still, Xv, _ = fits_static_chunked(suspects, uv, Dfit, vis, K, R, t, cfg, device)
+                # ... and one that fails it holds its point and then slips, like the masks' tracks above
+                # (not in the paper; 2 px, slip_px; the fits below then see its run only)
+                vis, slipped = rescue_slipped(suspects, still, Xv, np.full(len(suspects), cfg.slip_px), uv, Dfit,
+                                              vis, qf, K, R, t, cfg, device)
                 dynamic[suspects[~still]] = True
-                info["vote_tested"] = {"tested": int(len(suspects)), "static": int(still.sum())}
+                info["vote_tested"] = {"tested": int(len(suspects)), "static": int(still.sum()),
+                                       "slipped": slipped}
             else:
                 dynamic[suspects] = True
         if len(fit):  # triangulated with the poses held
