@@ -261,7 +261,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
     g.add_argument("--slip-run", type=float, default=d.slip_run, metavar="FRAC",
-                   help="(not in the paper) a masked or ambiguous track that fails the static test is static when "
+                   help="(not in the paper) a masked or ambiguous track, or one the vote calls moving, that fails the "
+                        "static test is static when "
                         "the point fitted around its query frame holds over a run of at least this fraction of "
                         "its visible frames (then dragged off by a mover: the rest is left out; 0: off)")
     g.add_argument("--slip-px", type=float, default=d.slip_px,
