@@ -549,18 +549,15 @@ def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarr
 
 
 def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
-    """The references of the appendix's scale propagation among ``tracks`` [n] (indices; None: all, without
-    copying the arrays): one visible observation per ``cell`` px square of each frame, in frame order. Returns
-    (track [R], frame [R], ratio [R] = camera z of its world point / prior depth)."""
-    if tracks is None:
-        n, t = thinned_observations(uv, vis, cell)
-    elif np.all(np.diff(tracks) > 0):  # ascending: selected through a mask, not copied out ([n,T] arrays)
+    """The references of the appendix's scale propagation among ``tracks`` [n] (indices, a set: a cell keeps its
+    lowest-index track; None: all), selected through a mask rather than copied out: one visible observation per
+    ``cell`` px square of each frame, in frame order. Returns (track [R], frame [R], ratio [R] = camera z of its
+    world point / prior depth)."""
+    member = None
+    if tracks is not None:
         member = np.zeros(len(vis), bool)
         member[tracks] = True
-        n, t = thinned_observations(uv, vis, cell, member)
-    else:
-        n, t = thinned_observations(uv[tracks], vis[tracks], cell)
-        n = tracks[n]
+    n, t = thinned_observations(uv, vis, cell, member)
     z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
     return n, t, z / np.maximum(D[n, t], 1e-6)
 
