@@ -1,0 +1,138 @@
+"""The ten-scene sweep: the full method (and any variants of it) on `default` seeds 0-7 and `hard` seeds 0-1.
+
+Every figure the README gives "on the ten scenes" comes from this script. Each scene is rendered and densely
+tracked once into a cache folder (``--cache``, default ``bench_out/scenes``) and reused by later runs, so the
+rows of one run, and of runs on other days, read the same tracks: a change to the optimiser shows by itself.
+Rows are named sets of ``trackingworld run`` optimiser flags, the default first::
+
+    .venv/bin/python benchmarks/bench_scenes.py                       # the default on the ten scenes
+    .venv/bin/python benchmarks/bench_scenes.py --row "no slip test=--slip-run 0" --scenes hard:0-1 default:0
+
+Per scene and row: world 3D accuracy all / static / dynamic, static kept static, dynamic recall, bg-mover
+recall, camera ATE, track depth AbsRel against the prior's, optimisation time; then each row's means. Written
+to ``benchmarks/results/scenes.md`` / ``.json`` (``--name`` changes the stem).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
+from trackingworld import __version__
+from trackingworld.cli.main import _optim_args, _optim_config
+from trackingworld.config import InputConfig, RunConfig, Track2DConfig
+from trackingworld.synth import render_and_write
+
+TEN_SCENES = ("default:0-7", "hard:0-1")
+# (label, path in the metrics, decimals) of each column
+COLUMNS = (
+    ("world all", ("world_3d", "all", "acc_avg"), 1),
+    ("world static", ("world_3d", "static", "acc_avg"), 1),
+    ("world dynamic", ("world_3d", "dynamic", "acc_avg"), 1),
+    ("static kept [%]", ("labels", "static_kept_static"), 1),
+    ("dynamic recall [%]", ("labels", "dynamic_recall"), 1),
+    ("bg-mover recall [%]", ("labels", "bg_mover_recall"), 1),
+    ("ATE [% path]", ("camera", "ate_pct_path"), 2),
+    ("track AbsRel", ("track_depth", "abs_rel_depth"), 4),
+    ("prior AbsRel", ("track_depth_prior", "abs_rel_depth"), 4),
+)
+
+
+def parse_scenes(specs: list[str]) -> list[tuple[str, int]]:
+    """``["default:0-7", "hard:1"]`` -> [(preset, seed), ...] in the order given."""
+    out = []
+    for spec in specs:
+        preset, _, seeds = spec.partition(":")
+        if not seeds:
+            raise SystemExit(f"bench_scenes: scene {spec!r} must be PRESET:SEED or PRESET:FIRST-LAST")
+        a, _, b = seeds.partition("-")
+        out += [(preset, s) for s in range(int(a), int(b or a) + 1)]
+    return out
+
+
+def parse_row(text: str):
+    """``"NAME=--flag value ..."`` -> (name, OptimConfig) through the CLI's own optimiser flags."""
+    name, sep, flags = text.partition("=")
+    if not sep or not name.strip():
+        raise SystemExit(f"bench_scenes: row {text!r} must be NAME=FLAGS")
+    p = argparse.ArgumentParser(prog=f"row {name!r}")
+    _optim_args(p)
+    p.add_argument("--quiet", action="store_true", default=True)
+    return name.strip(), _optim_config(p.parse_args(shlex.split(flags)))
+
+
+def cached_scene(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
+    """The scene folder and its default dense tracks, made when missing or made by another package version."""
+    scene = cache / f"{preset}{seed}"
+    tracks = scene / "tracks.npz"
+    stamp = scene / "stamp.json"
+    want = {"version": __version__, "preset": preset, "seed": seed}
+    if not (tracks.exists() and stamp.exists() and json.loads(stamp.read_text()) == want):
+        render_and_write(scene, preset, seed, verbose=False)
+        tracks_file(scene, tracks)
+        stamp.write_text(json.dumps(want))
+    return scene, tracks
+
+
+def get(m: dict, path: tuple[str, ...]):
+    for k in path:
+        m = (m or {}).get(k)
+    return m
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="+", default=list(TEN_SCENES), help="PRESET:SEED or PRESET:FIRST-LAST")
+    ap.add_argument("--row", action="append", default=[], metavar="NAME=FLAGS",
+                    help="a variant: trackingworld run's optimiser flags (repeatable); the default row comes first")
+    ap.add_argument("--cache", type=Path, default=Path("bench_out/scenes"),
+                    help="scenes and their dense tracks, kept between runs")
+    ap.add_argument("--name", default="scenes", help="stem of the results files in benchmarks/results/")
+    a = ap.parse_args(argv)
+    rows = [parse_row("default=")] + [parse_row(r) for r in a.row]
+    scenes = parse_scenes(a.scenes)
+    a.cache.mkdir(parents=True, exist_ok=True)
+    results: dict = {name: {} for name, _ in rows}
+    for preset, seed in scenes:
+        scene, tracks = cached_scene(a.cache, preset, seed)
+        inp = scene / "input"
+        for i, (name, optim) in enumerate(rows):
+            cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
+                                               masks=str(inp / "masks"), intrinsics=str(inp / "intrinsics.txt")),
+                            track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)), optim=optim)
+            r = run_and_evaluate(cfg, a.cache / f"run_{preset}{seed}_{i}", scene, f"{preset} {seed} {name}")
+            results[name][f"{preset} {seed}"] = {
+                "metrics": r["metrics"], "optim_s": sum(r["timings"].get(k, 0.0) for k in OPT_STAGES)}
+    write(results, a)
+    return 0
+
+
+def write(results: dict, a) -> None:
+    head = "| row | scene | " + " | ".join(c[0] for c in COLUMNS) + " | optimisation [s] |"
+    flags = " ".join(f"--row {shlex.quote(r)}" for r in a.row)
+    lines = md_table_start("# The full method on synthetic scenes (same cached dense tracks for every row)",
+                           f"Command: `.venv/bin/python benchmarks/bench_scenes.py --scenes {' '.join(a.scenes)}"
+                           f"{' ' + flags if flags else ''}`", head)
+    def cells(v) -> str:
+        return " | ".join(fmt(x, c[2]) for x, c in zip(v, COLUMNS, strict=True))
+
+    for name, per in results.items():
+        vals = []
+        for scene, r in per.items():
+            v = [get(r["metrics"], c[1]) for c in COLUMNS]
+            vals.append([np.nan if x is None else float(x) for x in v] + [r["optim_s"]])
+            lines.append(f"| {name} | {scene} | {cells(v)} | {r['optim_s']:.1f} |")
+        mean = np.nanmean(np.array(vals), 0)
+        lines.append(f"| **{name}** | **mean** | {cells(mean[:-1])} | {mean[-1]:.1f} |")
+    write_results(a.name, lines, results)
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())
