@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from trackingworld.cli.main import main
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt, project, transform, unproject
-from trackingworld.optim import lie, stage1, stage2, stage3
+from trackingworld.optim import lie, stage1, stage2, stage3, static_tests
 from trackingworld.optim.densify import cell_cap_mask, thinned_observations
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import build_clips, chain_clips, clip_frames, initial_poses, solve_clips_lm
@@ -435,7 +435,7 @@ def test_fits_static_triangulates_through_prior_noise_and_reports_pixel_residual
     uv, z, vis, c2w, moving = _scene(T=8, depth_noise=0.05, px_noise=0.05)
     cfg = OptimConfig(verbose=False)
     R, t = lie.c2w_to_w2c(c2w)
-    still, X, worst = world.fits_static(uv, z, vis, K, R, t, cfg, torch.float64, "cpu")
+    still, X, worst = static_tests.fits_static(uv, z, vis, K, R, t, cfg, torch.float64, "cpu")
     seen = vis.all(1) & ~moving
     uv0, z0 = uv[seen, 0], z[seen, 0]
     lifted = transform(c2w[0], np.c_[(uv0 - K[:2, 2]) / K[0, 0] * z0[:, None], z0])
@@ -455,7 +455,7 @@ def test_spread_observations_keeps_about_m_frames_over_the_span():
     vis[0, 2:27] = True  # 25 visible frames
     vis[1, [3, 9]] = True  # fewer than m: all kept
     vis[2, ::2] = True  # 15 visible frames with gaps
-    keep = world.spread_observations(vis, 5)
+    keep = static_tests.spread_observations(vis, 5)
     assert not (keep & ~vis).any()
     assert keep[1].tolist() == vis[1].tolist()
     for i in (0, 2):

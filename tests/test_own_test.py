@@ -7,6 +7,7 @@ import torch
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
+from trackingworld.optim import static_tests
 from trackingworld.optim.densify import cell_representatives
 from trackingworld.pipeline import world
 from trackingworld.tracking2d.base import TrackResult
@@ -28,13 +29,13 @@ def test_a_track_seen_once_takes_the_verdict_of_the_voters_on_its_side_of_a_dept
     dynamic = np.concatenate([box, [True, True, False, False]])  # the seen-once tracks' flags before (masks)
     once = np.arange(len(wall), N)
     voters = np.arange(len(wall))
-    out = world.vote_seen_once(once, voters, dynamic, uv, D, np.ones((N, 1), bool), np.zeros(N, np.int64),
+    out = static_tests.vote_seen_once(once, voters, dynamic, uv, D, np.ones((N, 1), bool), np.zeros(N, np.int64),
                                K, 3)
     np.testing.assert_array_equal(out, [False, False, True, True])
     # no voter visible in the frame: the flags stand
     vis = np.ones((N, 1), bool)
     vis[voters] = False
-    out = world.vote_seen_once(once, voters, dynamic, uv, D, vis, np.zeros(N, np.int64), K, 3)
+    out = static_tests.vote_seen_once(once, voters, dynamic, uv, D, vis, np.zeros(N, np.int64), K, 3)
     np.testing.assert_array_equal(out, dynamic[once])
 
 
@@ -55,13 +56,13 @@ def test_the_colour_weighted_vote_reads_the_side_a_blurred_prior_hides():
     colours = np.repeat(grey[:, None], 3, 1).astype(np.uint8)
     once, voters = np.arange(len(grid), N), np.arange(len(grid))
     vis, qf = np.ones((N, 1), bool), np.zeros(N, np.int64)
-    by_distance = world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16)
-    by_colour = world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 10.0)
+    by_distance = static_tests.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16)
+    by_colour = static_tests.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 10.0)
     assert by_distance[:2].all()  # the blur puts the wall's tracks with the box
     np.testing.assert_array_equal(by_colour, [False, False, True, True])
     # sigma 0 is the vote by distance alone
-    np.testing.assert_array_equal(world.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 0.0),
-                                  by_distance)
+    by_sigma_0 = static_tests.vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, 16, colours, 0.0)
+    np.testing.assert_array_equal(by_sigma_0, by_distance)
 
 
 def _wall_scene():
@@ -143,7 +144,7 @@ def test_the_percentile_test_lets_a_static_track_leave_its_point_in_a_quarter_of
     vis = tr.visible[who]
     for stat, expect in (("max", [False, False, False, True]), ("p75", [True, False, False, True])):
         cfg = OptimConfig(verbose=False, test_stat=stat)
-        still = world.fits_static(uv, D, vis, K, R, t, cfg, torch.float32, "cpu")[0]
+        still = static_tests.fits_static(uv, D, vis, K, R, t, cfg, torch.float32, "cpu")[0]
         got = [still[a:b][vis[a:b].all(1)].all() if e else not still[a:b][vis[a:b].all(1)].any()
                for (a, b), e in zip([(0, 50), (50, 100), (100, 150), (150, 200)], expect, strict=True)]
         assert all(got), (stat, got)

@@ -6,7 +6,7 @@ import torch
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
-from trackingworld.optim import lie
+from trackingworld.optim import lie, static_tests
 from trackingworld.optim.ratio_field import fit_log_field
 from trackingworld.pipeline import world
 
@@ -65,7 +65,7 @@ def test_refit_against_the_corrected_prior_places_short_baseline_points_better(r
                                     ("refit", world.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc,
                                      world.REFIT_ITERS)):
         xyz = np.zeros((N, T, 3), np.float32)
-        world._fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu",
+        static_tests.fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu",
                                  iters)
         err[name] = np.median(np.abs(np.linalg.norm(xyz[:, 0] - X, axis=1) / X[:, 2]))
     assert err["refit"] < 0.02 and err["refit"] < 0.4 * err["stage-2 weights, raw prior"], err

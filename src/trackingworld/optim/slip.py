@@ -6,7 +6,7 @@ called dynamic, its world positions following the mover. The run test looks at t
 frame only: a static point fitted there (poses held) and the run of consecutive visible frames around the query
 frame where that point reprojects within a few pixels. A long run is a static point the tracker lost; a mover's
 run is short (it leaves any static point within a few frames). These functions are the run's array logic; the
-fit is :func:`trackingworld.pipeline.world.slip_runs`.
+fit is :func:`trackingworld.optim.static_tests.slip_runs`.
 """
 
 from __future__ import annotations

@@ -38,8 +38,16 @@ from trackingworld.optim.edge_prior import inner_prior
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.ratio_field import fit_log_fields
-from trackingworld.optim.slip import frames_around, long_runs, run_around
 from trackingworld.optim.stage1 import initial_poses
+from trackingworld.optim.static_tests import (
+    fit_static_points,
+    fits_static_chunked,
+    moving_tracks,
+    rescue_slipped,
+    spread_observations,
+    static_outliers,
+    vote_seen_once,
+)
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
@@ -67,18 +75,10 @@ MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field nee
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
 VOTE_CELL_PX = 4  # the tested tracks a track seen once is voted on by: one per (query frame, 4 px square)
-FIT_CHUNK = 1 << 17  # tracks per chunk of the as-static fits and tests (bounds their memory at large videos)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
 FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
 FOCAL_SETTLED = 0.02  # the last round's change must be below this for the refined focal length to be kept
-
-
-def _moving(R, t, X, p: stage2.BAProblem, cfg: OptimConfig) -> np.ndarray:
-    """[N] bool: optimised static tracks whose offsets reach epsilon (moving background objects)."""
-    if not p.offsets:
-        return np.zeros(p.n_points, bool)
-    return stage2.track_offset_stat(stage2.offset_norms(R, t, X, p), p, cfg.offset_stat) >= cfg.epsilon
 
 
 def solve_stage2(R, t, X, p: stage2.BAProblem, cfg: OptimConfig, log=None):
@@ -101,138 +101,6 @@ def solve_stage2(R, t, X, p: stage2.BAProblem, cfg: OptimConfig, log=None):
         p = p.subset(inlier)
         sol = solve(sol.R, sol.t, sol.X, p)
     return sol, p, rejected
-
-
-def _static_points(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device, iters: int = 6):
-    """Each track's best static point with the poses held (stage 2's objective, offsets eliminated; ``iters``
-    Gauss-Newton steps). Returns the problem, the poses in ``dtype`` and X [n,3] world (a tensor)."""
-    pc = stage2.BAProblem.from_tracks(uv, D, vis, K, cfg, dtype, device)
-    R, t = R.to(dtype), t.to(dtype)
-    return pc, R, t, stage2.fit_points(R, t, pc, iters)
-
-
-def fits_static(uv, D, vis, K, R, t, cfg: OptimConfig, dtype, device) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The as-static-as-possible test of tracks (uv [n,T,2] px, prior D [n,T], vis [n,T]) with the poses (R, t
-    world-to-camera) held: each track's best static point, and whether its offsets stay below epsilon.
-    Returns (still [n] bool, X [n,3] world, largest reprojection residual [n] px of X over the visible frames)."""
-    pc, R, t, X = _static_points(uv, D, vis, K, R, t, cfg, dtype, device)
-    _, r_uv, _ = stage2.residuals(R, t, X, pc)
-    worst = torch.zeros(pc.n_points, dtype=r_uv.dtype, device=r_uv.device)
-    worst.scatter_reduce_(0, pc.pt, r_uv.norm(dim=-1), reduce="amax")
-    return ~_moving(R, t, X, pc, replace(cfg, offset_stat=cfg.test_stat)), X.cpu().numpy(), worst.cpu().numpy()
-
-
-def _chunks(tracks, vis, frames: int):
-    """``tracks`` [n] (indices) in chunks of FIT_CHUNK (bounds the memory of the per-observation Gauss-Newton
-    blocks at large videos), each with its visible frames spread to at most about ``frames`` (0: all)."""
-    for a in range(0, len(tracks), FIT_CHUNK):
-        c = tracks[a:a + FIT_CHUNK]
-        yield c, spread_observations(vis[c], frames) if frames else vis[c]
-
-
-def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
-    """:func:`fits_static` of ``tracks`` [n] (indices), from at most about ``cfg.test_frames`` of each one's
-    visible frames, in float32 and in chunks (:func:`_chunks`)."""
-    out = [fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device)
-           for c, vc in _chunks(tracks, vis, cfg.test_frames)]
-    return tuple(np.concatenate(x) for x in zip(*out, strict=True))
-
-
-def slip_runs(tracks, uv, D, vis, qf, px, K, R, t, cfg: OptimConfig, device) -> tuple[np.ndarray, np.ndarray]:
-    """The run test of ``optim.slip`` for ``tracks`` [n] (indices): each one's static point fitted to its query
-    frame and the ``cfg.slip_window`` visible frames either side (poses R, t world-to-camera held, depth target
-    ``D`` [N,T] metres), and the run of its visible frames around the query frame (``qf`` [N]) where that point
-    reprojects within ``px`` [n] pixels of the track (``uv`` [N,T,2]). Returns (run [n,T] bool, X [n,3] world
-    metres). In float32 and in chunks of FIT_CHUNK tracks."""
-    run = np.zeros((len(tracks), vis.shape[1]), bool)
-    X = np.zeros((len(tracks), 3), np.float32)
-    for a in range(0, len(tracks), FIT_CHUNK):
-        c = tracks[a:a + FIT_CHUNK]
-        near = frames_around(vis[c], qf[c], cfg.slip_window)
-        _, Rf, tf, Xc = _static_points(uv[c], D[c], near, K, R, t, cfg, torch.float32, device)
-        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
-        err = np.full(vis[c].shape, np.inf, np.float32)
-        err[pc.pt.cpu().numpy(), pc.fr.cpu().numpy()] = stage2.residuals(Rf, tf, Xc, pc)[1].norm(dim=-1).cpu().numpy()
-        run[a:a + len(c)] = run_around(vis[c], err > px[a:a + len(c), None], qf[c])
-        X[a:a + len(c)] = Xc.cpu().numpy()
-    return run, X
-
-
-def rescue_slipped(tracks, still, X, px, uv, D, vis, qf, K, R, t, cfg: OptimConfig, device):
-    """The run test (``optim.slip``, :func:`slip_runs` within ``px`` [n] pixels) of the ``tracks`` [n] (indices)
-    whose as-static test failed (``~still`` [n] bool): those with a long run (``cfg.slip_run``) that pass the
-    as-static test again over their run (a mover along its epipolar lines can hold a static point's pixels, not
-    its depth) become static in place (``still`` set, ``X`` [n,3] world metres their run's point). Returns
-    (visibility [N,T]: a copy where runs replaced tracks' visible frames, else ``vis`` itself; how many were
-    rescued). ``cfg.slip_run`` 0: off."""
-    if cfg.slip_run <= 0 or still.all():
-        return vis, 0
-    failed = np.flatnonzero(~still)
-    run, Xs = slip_runs(tracks[failed], uv, D, vis, qf, px[failed], K, R, t, cfg, device)
-    ok = np.flatnonzero(long_runs(run, vis[tracks[failed]], cfg.slip_run))
-    if not len(ok):
-        return vis, 0
-    who = tracks[failed[ok]]
-    out = vis.copy()
-    out[who] = run[ok]
-    holds = fits_static_chunked(who, uv, D, out, K, R, t, cfg, device)[0]
-    out[who[~holds]] = vis[who[~holds]]
-    ok = ok[holds]
-    still[failed[ok]] = True
-    X[failed[ok]] = Xs[ok]
-    return (out, len(ok)) if len(ok) else (vis, 0)
-
-
-def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) -> np.ndarray:
-    """``[n,T]`` bool: the visible observations of the static ``tracks`` [n] (indices) whose offset from their
-    point ``xyz[tracks, 0]`` (world metres) reaches epsilon with the poses (R, t world-to-camera) held: frames
-    where the 2D track left its point (slipped onto an occluder, found again off its point). In float32 and in
-    chunks of FIT_CHUNK tracks."""
-    out = np.zeros((len(tracks), vis.shape[1]), bool)
-    for a in range(0, len(tracks), FIT_CHUNK):
-        c = tracks[a:a + FIT_CHUNK]
-        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
-        X = torch.as_tensor(xyz[c, 0], dtype=torch.float32, device=pc.uv.device)
-        far = (stage2.offset_norms(R.float(), t.float(), X, pc) >= cfg.epsilon).cpu().numpy()
-        rows, cols = np.nonzero(vis[c])  # the problem's observations, track-major, frames ascending
-        out[a + rows[far], cols[far]] = True
-    return out
-
-
-def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.ndarray | None = None,
-                   colour_sigma: float = 0.0) -> np.ndarray:
-    """``[n]`` bool: dynamic or not, for the tracks ``once`` [n] (indices) seen in their query frame only, by the
-    inverse-distance-weighted vote of the ``k`` image-nearest ``voters`` (indices of tested tracks) visible in
-    that frame, each voting its ``dynamic`` flag ([N] bool), weights 1 / 3D distance of the points lifted with
-    the prior ``D`` [N,T] metres (a voter across a depth edge barely counts), times a Gaussian of width
-    ``colour_sigma`` grey levels in the RGB difference of the tracks' query-frame ``colours`` [N,3] when both
-    are given (densify.propagate_ratio). uv [N,T,2] px, vis [N,T], qf [N] query frames, K [3,3]. A track with no
-    voter in its frame keeps its flag."""
-    out = dynamic[once].copy()
-    voters_t = np.ascontiguousarray(vis[voters].T)
-    for q in np.unique(qf[once]):
-        sel = np.flatnonzero(qf[once] == q)
-        who, d = once[sel], voters[voters_t[q]]
-        if len(d):
-            out[sel] = propagate_ratio(uv[d, q], D[d, q], dynamic[d].astype(np.float64), uv[who, q], D[who, q], K,
-                                       k, ref_colour=None if colours is None else colours[d],
-                                       query_colour=None if colours is None else colours[who],
-                                       colour_sigma=colour_sigma) >= 0.5
-    return out
-
-
-def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
-    """``[n,T]`` bool: of each track's visible frames ``vis [n,T]``, at most about ``m`` spread evenly over its
-    visible span (every ceil(count / m)-th one and the last)."""
-    count = vis.sum(1)
-    step = np.maximum(-(-count // m), 1)
-    out = vis.copy()
-    long = np.flatnonzero(step > 1)  # the others keep every visible frame
-    if len(long):
-        v = vis[long]
-        rank = np.cumsum(v, axis=1, dtype=np.int32) - 1
-        out[long] = v & ((rank % step[long, None].astype(np.int32) == 0) | (rank == count[long, None] - 1))
-    return out
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
@@ -296,7 +164,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         for _ in range(rounds):
             sol, p, rejected = solve_stage2(R, t, X, p_all, cfg, log)
             R, t, X = sol.R, sol.t, sol.X
-            moving_s2 = _moving(R, t, X, p_all, cfg)
+            moving_s2 = moving_tracks(R, t, X, p_all, cfg)
             if not refine_focal:
                 break
             if start is None:
@@ -306,7 +174,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             p, p_all = replace(p, K=fsol.K), replace(p_all, K=fsol.K)
             R, t = fsol.R, fsol.t
             X = stage2.fit_points(R, t, p_all)  # every control track against the new focal length, poses held
-            moving_s2 = _moving(R, t, X, p_all, cfg)
+            moving_s2 = moving_tracks(R, t, X, p_all, cfg)
             history.append(focal_length(K))
             if cfg.verbose:
                 print(f"[stage2] focal length, round {len(history) - 1}: {history[-2]:.1f} -> {history[-1]:.1f} px",
@@ -327,7 +195,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                                        "rounds_px": history, "settled": bool(settled)}
         if not np.array_equal(obs2, vis[s2]):  # capped: the moving-background test on every observation
             full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
-            moving_s2 = _moving(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
+            moving_s2 = moving_tracks(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()
         info["stage2"]["moving"] = int(moving_s2.sum())
@@ -421,7 +289,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             else:
                 dynamic[suspects] = True
         if len(fit):  # triangulated with the poses held
-            _fit_static_points(fit, uv, Dfit, vis, xyz, K, R, t, cfg, device)
+            fit_static_points(fit, uv, Dfit, vis, xyz, K, R, t, cfg, device)
             info["static_fitted"] = int(len(fit))
         info["dynamic"] = int(dynamic.sum())
 
@@ -463,7 +331,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # seen over a short baseline is placed by the prior, which the field has corrected, more than by
             # its small parallax (after the depth-mover test, which needs the fits that follow the parallax)
             refit = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            _fit_static_points(refit, uv, Dfit, vis, xyz, K, R, t, replace(cfg, lambda_dc=cfg.static_refit_dc),
+            fit_static_points(refit, uv, Dfit, vis, xyz, K, R, t, replace(cfg, lambda_dc=cfg.static_refit_dc),
                                device, REFIT_ITERS)
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
@@ -524,14 +392,6 @@ def corrected_prior(D, uv, vis, fields) -> np.ndarray:
         if f is not None and len(w):
             out[w, t] *= sample_image(np.exp(f.image()), uv[w, t].astype(np.float32))
     return out
-
-
-def _fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device, iters: int = 6) -> None:
-    """``xyz[tracks]`` (in place, every frame) <- each track's static point with the poses held (stage 2's
-    objective with ``cfg``'s weights against the prior ``D``), from at most about ``static_fit_frames`` of its
-    visible frames, in float32 and in chunks (:func:`_chunks`)."""
-    for c, vf in _chunks(tracks, vis, cfg.static_fit_frames):
-        xyz[c] = _static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device, iters)[3].cpu().numpy()[:, None]
 
 
 def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float,
