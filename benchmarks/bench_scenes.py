@@ -3,13 +3,15 @@
 Every figure the README gives "on the ten scenes" comes from this script. Each scene is rendered and densely
 tracked once into a cache folder (``--cache``, default ``bench_out/scenes``) and reused by later runs, so the
 rows of one run, and of runs on other days, read the same tracks: a change to the optimiser shows by itself.
-Rows are named sets of ``trackingworld run`` optimiser flags, the default first::
+Rows are named sets of ``trackingworld run`` optimiser flags, the default first, and with ``--baseline`` the
+camera-centric lifting last::
 
     .venv/bin/python benchmarks/bench_scenes.py                       # the default on the ten scenes
     .venv/bin/python benchmarks/bench_scenes.py --row "no slip test=--slip-run 0" --scenes hard:0-1 default:0
 
 Per scene and row: world 3D accuracy all / static / dynamic, static kept static, dynamic recall, bg-mover
-recall, camera ATE, track depth AbsRel against the prior's, optimisation time; then each row's means. Written
+recall, camera ATE, track depth and video depth AbsRel each beside the raw prior's on the same pixels,
+optimisation time; then each row's means. Written
 to ``benchmarks/results/scenes.md`` / ``.json`` (``--name`` changes the stem).
 """
 
@@ -19,6 +21,7 @@ import argparse
 import json
 import shlex
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +42,10 @@ COLUMNS = (
     ("dynamic recall [%]", ("labels", "dynamic_recall"), 1),
     ("bg-mover recall [%]", ("labels", "bg_mover_recall"), 1),
     ("ATE [% path]", ("camera", "ate_pct_path"), 2),
-    ("track AbsRel", ("track_depth", "abs_rel_depth"), 4),
-    ("prior AbsRel", ("track_depth_prior", "abs_rel_depth"), 4),
+    ("track depth AbsRel", ("track_depth", "abs_rel_depth"), 4),
+    ("prior there", ("track_depth_prior", "abs_rel_depth"), 4),
+    ("video depth AbsRel", ("video_depth", "abs_rel_depth"), 4),
+    ("prior", ("video_depth_prior", "abs_rel_depth"), 4),
 )
 
 
@@ -68,11 +73,13 @@ def parse_row(text: str):
 
 
 def cached_scene(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
-    """The scene folder and its default dense tracks, made when missing or made by another package version."""
+    """The scene folder and its default dense tracks, made when missing or made by another package version or
+    other default tracking settings."""
     scene = cache / f"{preset}{seed}"
     tracks = scene / "tracks.npz"
     stamp = scene / "stamp.json"
-    want = {"version": __version__, "preset": preset, "seed": seed}
+    want = json.loads(json.dumps({"version": __version__, "preset": preset, "seed": seed,
+                                  "track2d": asdict(Track2DConfig())}))
     if not (tracks.exists() and stamp.exists() and json.loads(stamp.read_text()) == want):
         render_and_write(scene, preset, seed, verbose=False)
         tracks_file(scene, tracks)
@@ -91,21 +98,27 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", nargs="+", default=list(TEN_SCENES), help="PRESET:SEED or PRESET:FIRST-LAST")
     ap.add_argument("--row", action="append", default=[], metavar="NAME=FLAGS",
                     help="a variant: trackingworld run's optimiser flags (repeatable); the default row comes first")
+    ap.add_argument("--baseline", action="store_true",
+                    help="a last row: the camera-centric baseline (--method baseline)")
     ap.add_argument("--cache", type=Path, default=Path("bench_out/scenes"),
                     help="scenes and their dense tracks, kept between runs")
     ap.add_argument("--name", default="scenes", help="stem of the results files in benchmarks/results/")
     a = ap.parse_args(argv)
-    rows = [parse_row("default=")] + [parse_row(r) for r in a.row]
+    rows = [("default", parse_row("default=")[1], "trackingworld")]
+    rows += [(*parse_row(r), "trackingworld") for r in a.row]
+    if a.baseline:
+        rows.append(("baseline", rows[0][1], "baseline"))
     scenes = parse_scenes(a.scenes)
     a.cache.mkdir(parents=True, exist_ok=True)
-    results: dict = {name: {} for name, _ in rows}
+    results: dict = {name: {} for name, _, _ in rows}
     for preset, seed in scenes:
         scene, tracks = cached_scene(a.cache, preset, seed)
         inp = scene / "input"
-        for i, (name, optim) in enumerate(rows):
-            cfg = RunConfig(inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
-                                               masks=str(inp / "masks"), intrinsics=str(inp / "intrinsics.txt")),
-                            track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)), optim=optim)
+        for i, (name, optim, method) in enumerate(rows):
+            given = InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"), masks=str(inp / "masks"),
+                                intrinsics=str(inp / "intrinsics.txt"))
+            cfg = RunConfig(method=method, inputs=given, optim=optim,
+                            track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)))
             r = run_and_evaluate(cfg, a.cache / f"run_{preset}{seed}_{i}", scene, f"{preset} {seed} {name}")
             results[name][f"{preset} {seed}"] = {
                 "metrics": r["metrics"], "optim_s": sum(r["timings"].get(k, 0.0) for k in OPT_STAGES)}
@@ -115,7 +128,7 @@ def main(argv=None) -> int:
 
 def write(results: dict, a) -> None:
     head = "| row | scene | " + " | ".join(c[0] for c in COLUMNS) + " | optimisation [s] |"
-    flags = " ".join(f"--row {shlex.quote(r)}" for r in a.row)
+    flags = " ".join([f"--row {shlex.quote(r)}" for r in a.row] + ["--baseline"] * a.baseline)
     lines = md_table_start("# The full method on synthetic scenes (same cached dense tracks for every row)",
                            f"Command: `.venv/bin/python benchmarks/bench_scenes.py --scenes {' '.join(a.scenes)}"
                            f"{' ' + flags if flags else ''}`", head)

@@ -374,3 +374,42 @@ def test_a_step_that_leaves_its_like_moving_neighbours_is_dragged():
     ask = np.zeros(len(p), bool)
     ask[nudged] = True
     assert not tracker._dragged(p, va, step, every, ask, 8, 24.0).any()
+
+
+def test_smaller_dis_patches_leak_less_of_a_movers_flow_into_the_background():
+    from trackingworld.tracking2d.flow_tracker import pairwise_flows
+
+    H, W = 96, 128
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+
+        bg, fg = (cv2.resize(rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32), (w, h),
+                             interpolation=cv2.INTER_CUBIC) for h, w in ((H, W), (40, 40)))
+        frames = []
+        for t in range(2):  # a textured square moving 3 px to the right over a static textured background
+            f = bg.copy()
+            f[28:68, 40 + 3 * t:80 + 3 * t] = fg
+            frames.append(np.clip(cv2.GaussianBlur(f, (0, 0), 0.7), 0, 255).astype(np.uint8))
+        beside = np.zeros((H, W), bool)  # static background just behind and above the square
+        beside[28:68, 32:39] = True
+        beside[20:27, 40:80] = True
+        leak = {}
+        for patch in [(8, 3), (4, 2)]:
+            flow = pairwise_flows(frames, patch=patch)[0][0]
+            leak[patch] = np.abs(flow[beside]).mean()
+            assert np.abs(flow[32:64, 50:75, 0] - 3).mean() < 0.05  # the square itself moves by 3 px either way
+        assert leak[(4, 2)] < 0.75 * leak[(8, 3)]
+
+
+def test_flow_patch_option_reaches_the_tracker(capsys):
+    from trackingworld.cli.main import _track_config, build_parser
+    from trackingworld.pipeline.tracks import make_tracker
+
+    cfg = _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-patch", "6,3"]))
+    assert cfg.flow_patch == (6, 3)
+    tracker = make_tracker(cfg, verbose=False)
+    assert (tracker.config.patch_size, tracker.config.patch_stride) == (6, 3)
+    assert _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz"])).flow_patch == (4, 2)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-patch", "4"])
+    assert "SIZE,STRIDE" in capsys.readouterr().err

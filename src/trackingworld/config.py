@@ -57,6 +57,7 @@ class Track2DConfig:
     # correct; tracking2d.upsample) | convex-mean: their weighted mean (the paper's convex upsampler) | bilinear
     upsampler: str = "convex"
     flow_preset: str = "fine"
+    flow_patch: tuple[int, int] = (4, 2)  # the fine preset's DIS patch side and stride (px); (8, 3) before
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
     flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
 

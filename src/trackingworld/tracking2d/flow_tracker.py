@@ -45,6 +45,10 @@ from trackingworld.tracking2d.base import TrackResult
 @dataclass
 class FlowTrackerConfig:
     preset: str = "fine"  # DIS preset: ultrafast | fast | medium | fine
+    # the fine preset's DIS patches (px): side and stride. Smaller patches leak less of a moving object's flow
+    # into the background beside it (docs/tracking2d.md; 8 and 3 before)
+    patch_size: int = 4
+    patch_stride: int = 2
     fb_abs_px: float = 2.0  # forward-backward error allowed: abs + rel * |flow|
     fb_rel: float = 0.05
     max_colour_diff: float = 10.0  # grey levels (0-255, max over RGB, sigma-1 blur) a step may change; 0: off
@@ -78,8 +82,9 @@ class FlowTrackerConfig:
     verbose: bool = False
 
 
-def _dis(preset: str):
-    """OpenCV DIS flow. ``fine`` is the ``medium`` preset at full resolution with denser patches."""
+def _dis(preset: str, patch: tuple[int, int] = (4, 2)):
+    """OpenCV DIS flow. ``fine`` is the ``medium`` preset at full resolution with smaller, denser patches
+    (``patch``: side and stride in px)."""
     presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM, "fine": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
     if preset not in presets:
@@ -87,16 +92,19 @@ def _dis(preset: str):
     dis = cv2.DISOpticalFlow_create(presets[preset])
     if preset == "fine":
         dis.setFinestScale(0)
-        dis.setPatchStride(3)
+        dis.setPatchSize(patch[0])
+        dis.setPatchStride(patch[1])
         dis.setGradientDescentIterations(40)
         dis.setVariationalRefinementIterations(10)
     return dis
 
 
-def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stride: int = 1):
+def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stride: int = 1,
+                   patch: tuple[int, int] = (4, 2)):
     """Forward flows ``fwd[j]`` (frame j s -> (j+1) s) and backward flows ``bwd[j]`` ((j+1) s -> j s), each
-    [(T-1) // s,H,W,2], of the grey frames ``gray`` (T x [H,W] uint8), s = ``stride`` (1: consecutive frames)."""
-    dis = _dis(preset)
+    [(T-1) // s,H,W,2], of the grey frames ``gray`` (T x [H,W] uint8), s = ``stride`` (1: consecutive frames);
+    ``patch``: the fine preset's DIS patch side and stride (px)."""
+    dis = _dis(preset, patch)
     n = max((len(gray) - 1) // stride, 0)
     fwd = np.zeros((n,) + gray[0].shape + (2,), np.float32)
     bwd = np.zeros_like(fwd)
@@ -192,9 +200,10 @@ class FlowTracker:
         if self._video is None or self._video.key != id(frames):
             gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
             c = self.config
-            fwd, bwd = pairwise_flows(gray, c.preset, c.verbose)
+            patch = (c.patch_size, c.patch_stride)
+            fwd, bwd = pairwise_flows(gray, c.preset, c.verbose, patch=patch)
             if c.skip_stride > 1:
-                skip_fwd, skip_bwd = pairwise_flows(gray, c.preset, c.verbose, c.skip_stride)
+                skip_fwd, skip_bwd = pairwise_flows(gray, c.preset, c.verbose, c.skip_stride, patch)
             else:
                 skip_fwd = skip_bwd = np.zeros((0,) + fwd.shape[1:], np.float32)
             self._video = _Video(id(frames), fwd, bwd, gray,
