@@ -294,7 +294,7 @@ class FlowTracker:
         skip_a, skip_b = (video.skip_fwd, video.skip_bwd) if direction == 1 else (video.skip_bwd, video.skip_fwd)
         # the last multiple of s passed, and every point's position there
         anchor_t, anchor_p = (t0, p0.copy()) if s and t0 % s == 0 else (None, None)
-        run = np.zeros(M, int)  # observed steps in a row
+        run = np.zeros(M, int)  # steps observed at both ends in a row
         t = t0
         while 0 <= t + direction < T:
             k = t if direction == 1 else t - 1  # index of the flow between t and t + direction
@@ -366,7 +366,9 @@ class FlowTracker:
             p = p_new
             inside = (p[:, 0] >= -0.5) & (p[:, 0] < W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] < H - 0.5)
             gap = np.where(ok, 0, gap + 1)
-            run = np.where(ok, run + 1, 0)
+            # steps observed at both ends in a row: a point found again starts a new run, its position at the
+            # previous multiple of s (the skip flow's start) being the estimate it was carried at
+            run = np.where(ok & ~in_gap, run + 1, 0)
             if s and tn % s == 0:
                 anchor_t, anchor_p = tn, p.copy()
             if drift_check:  # the colour at the new position: sampled above unless the position moved since
