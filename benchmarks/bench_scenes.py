@@ -11,13 +11,15 @@ camera-centric lifting last::
 
 Per scene and row: world 3D accuracy all / static / dynamic, static kept static, dynamic recall, bg-mover
 recall, camera ATE, track depth and video depth AbsRel each beside the raw prior's on the same pixels,
-optimisation time; then each row's means. Written
-to ``benchmarks/results/scenes.md`` / ``.json`` (``--name`` changes the stem).
+optimisation time; then each row's means. Written to ``benchmarks/results/scenes.md`` / ``.json`` (``--name``
+changes the stem). ``--track FLAGS`` tracks the scenes with other ``trackingworld track2d`` flags (give it a
+``--cache`` folder of its own); ``--scenes default:8-11 hard:2`` are scenes no setting was chosen on.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import shlex
 import sys
@@ -27,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
-from trackingworld import __version__
-from trackingworld.cli.main import _optim_args, _optim_config
+from trackingworld import __version__, tracking2d
+from trackingworld.cli.main import _optim_args, _optim_config, _track_args, _track_config
 from trackingworld.config import InputConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
 
@@ -72,17 +74,35 @@ def parse_row(text: str):
     return name.strip(), _optim_config(p.parse_args(shlex.split(flags)))
 
 
-def cached_scene(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
-    """The scene folder and its default dense tracks, made when missing or made by another package version or
-    other default tracking settings."""
+def parse_track(flags: str) -> Track2DConfig:
+    """``trackingworld track2d``'s tracking flags -> the Track2DConfig the scenes are tracked with."""
+    p = argparse.ArgumentParser(prog="--track")
+    _track_args(p)
+    return _track_config(p.parse_args(shlex.split(flags)))
+
+
+def tracker_code() -> str:
+    """A digest of the 2D tracker's source files: cached tracks made by other code are made again."""
+    h = hashlib.sha256()
+    for f in sorted((Path(tracking2d.__file__).parent).glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cached_scene(cache: Path, preset: str, seed: int, track2d: Track2DConfig) -> tuple[Path, Path]:
+    """The scene folder and its dense tracks by ``track2d``, made when missing or made by another package
+    version, other tracking settings or other tracker code."""
     scene = cache / f"{preset}{seed}"
     tracks = scene / "tracks.npz"
     stamp = scene / "stamp.json"
     want = json.loads(json.dumps({"version": __version__, "preset": preset, "seed": seed,
-                                  "track2d": asdict(Track2DConfig())}))
-    if not (tracks.exists() and stamp.exists() and json.loads(stamp.read_text()) == want):
-        render_and_write(scene, preset, seed, verbose=False)
-        tracks_file(scene, tracks)
+                                  "track2d": {**asdict(track2d), "code": tracker_code()}}))
+    have = json.loads(stamp.read_text()) if stamp.exists() else {}
+    if not (tracks.exists() and have == want):
+        if {**have, "track2d": None} != {**want, "track2d": None}:  # the scene itself: rendered again
+            render_and_write(scene, preset, seed, verbose=False)
+        fields = {k: v for k, v in asdict(track2d).items() if v != getattr(Track2DConfig(), k)}
+        tracks_file(scene, tracks, **fields)
         stamp.write_text(json.dumps(want))
     return scene, tracks
 
@@ -100,8 +120,10 @@ def main(argv=None) -> int:
                     help="a variant: trackingworld run's optimiser flags (repeatable); the default row comes first")
     ap.add_argument("--baseline", action="store_true",
                     help="a last row: the camera-centric baseline (--method baseline)")
+    ap.add_argument("--track", default="", metavar="FLAGS",
+                    help="the scenes' 2D tracking flags (trackingworld track2d's), e.g. '--flow-patch 8,3'")
     ap.add_argument("--cache", type=Path, default=Path("bench_out/scenes"),
-                    help="scenes and their dense tracks, kept between runs")
+                    help="scenes and their dense tracks, kept between runs (one folder per tracking setting)")
     ap.add_argument("--name", default="scenes", help="stem of the results files in benchmarks/results/")
     a = ap.parse_args(argv)
     rows = [("default", parse_row("default=")[1], "trackingworld")]
@@ -109,10 +131,11 @@ def main(argv=None) -> int:
     if a.baseline:
         rows.append(("baseline", rows[0][1], "baseline"))
     scenes = parse_scenes(a.scenes)
+    track2d = parse_track(a.track)
     a.cache.mkdir(parents=True, exist_ok=True)
     results: dict = {name: {} for name, _, _ in rows}
     for preset, seed in scenes:
-        scene, tracks = cached_scene(a.cache, preset, seed)
+        scene, tracks = cached_scene(a.cache, preset, seed, track2d)
         inp = scene / "input"
         for i, (name, optim, method) in enumerate(rows):
             given = InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"), masks=str(inp / "masks"),
@@ -128,7 +151,8 @@ def main(argv=None) -> int:
 
 def write(results: dict, a) -> None:
     head = "| row | scene | " + " | ".join(c[0] for c in COLUMNS) + " | optimisation [s] |"
-    flags = " ".join([f"--row {shlex.quote(r)}" for r in a.row] + ["--baseline"] * a.baseline)
+    flags = " ".join([f"--row {shlex.quote(r)}" for r in a.row] + ["--baseline"] * a.baseline +
+                     ([f"--track {shlex.quote(a.track)}"] if a.track else []))
     lines = md_table_start("# The full method on synthetic scenes (same cached dense tracks for every row)",
                            f"Command: `.venv/bin/python benchmarks/bench_scenes.py --scenes {' '.join(a.scenes)}"
                            f"{' ' + flags if flags else ''}`", head)
