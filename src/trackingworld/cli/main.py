@@ -153,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _track_args(p) -> None:
-    from trackingworld.config import UPSAMPLERS
+    from trackingworld.config import UPSAMPLERS, Track2DConfig
 
     g = p.add_argument_group("2D tracking")
     g.add_argument("--tracks", help="precomputed tracks .npz (CoTracker or TAPNet layout) instead of tracking")
@@ -171,7 +171,7 @@ def _track_args(p) -> None:
                    help="convex: weighted affine fit of the grid neighbours at each pixel; convex-mean: their "
                         "weighted mean (the paper)")
     g.add_argument("--flow-preset", default="fine", choices=["ultrafast", "fast", "medium", "fine"])
-    g.add_argument("--flow-patch", type=_patch, default=(4, 2), metavar="SIZE,STRIDE",
+    g.add_argument("--flow-patch", type=_patch, default=Track2DConfig().flow_patch, metavar="SIZE,STRIDE",
                    help="the fine preset's DIS patch side and stride in px (smaller patches leak less of a mover's "
                         "flow into the background beside it; 8,3 before)")
     g.add_argument("--flow-skip-stride", type=int, default=4,
