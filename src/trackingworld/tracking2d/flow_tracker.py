@@ -82,7 +82,7 @@ class FlowTrackerConfig:
     verbose: bool = False
 
 
-def _dis(preset: str, patch: tuple[int, int] = (4, 2)):
+def _dis(preset: str, patch: tuple[int, int]):
     """OpenCV DIS flow. ``fine`` is the ``medium`` preset at full resolution with smaller, denser patches
     (``patch``: side and stride in px)."""
     presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
@@ -100,7 +100,7 @@ def _dis(preset: str, patch: tuple[int, int] = (4, 2)):
 
 
 def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stride: int = 1,
-                   patch: tuple[int, int] = (4, 2)):
+                   patch: tuple[int, int] = (FlowTrackerConfig.patch_size, FlowTrackerConfig.patch_stride)):
     """Forward flows ``fwd[j]`` (frame j s -> (j+1) s) and backward flows ``bwd[j]`` ((j+1) s -> j s), each
     [(T-1) // s,H,W,2], of the grey frames ``gray`` (T x [H,W] uint8), s = ``stride`` (1: consecutive frames);
     ``patch``: the fine preset's DIS patch side and stride (px)."""
