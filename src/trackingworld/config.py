@@ -199,6 +199,16 @@ class OptimConfig:
     # +0.2 to +1.1 on each, dynamic recall +0.36 on the mean, world accuracy within 0.1 (docs/lifting.md, item 4)
     vote_colour_sigma: float = 10.0
     vote_k: int = 16
+    # (not in the paper) a track seen in at most this many frames takes that vote too, the voters being the tracks
+    # seen in more (1: the tracks seen once alone). A short track cannot fail the as-static test: a far object
+    # sliding at 1.5 px a frame moves its point by less than epsilon over 8 frames. On the 'default' scene seed
+    # 11, 36% of the tracks on the mover the masks missed were seen in 4-8 frames, and 3% of those were labelled
+    # dynamic (all of those seen in 16 or more). The vote turns a short track static -> dynamic only when its own
+    # static fit misses a pixel by more than vote_flip_px (0: always): on default seeds 2 and 11 the short static
+    # tracks fit their point within 0.16-0.21 px (median), those on the missed movers 1.7-2.1 px (docs/lifting.md,
+    # item 4)
+    vote_short: int = 10
+    vote_flip_px: float = 1.0
     static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.

@@ -301,6 +301,12 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper) a track seen once takes its tested neighbours' vote weighted also by "
                         "a Gaussian of this width in their colour difference (0: by the prior-lifted distance alone)")
     g.add_argument("--vote-k", type=int, default=d.vote_k, help="voters of that colour-weighted vote")
+    g.add_argument("--vote-short", type=int, default=d.vote_short, metavar="FRAMES",
+                   help="(not in the paper; with --own-test) a track seen in at most this many frames, too short to "
+                        "fail the static test, takes the vote of the tracks seen in more (1: the tracks seen once)")
+    g.add_argument("--vote-flip-px", type=float, default=d.vote_flip_px, metavar="PX",
+                   help="with --vote-short: the vote makes a short track dynamic only when its static fit misses a "
+                        "pixel by more than this (0: always)")
     g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
                    help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
                         "optimised static points' z / prior (default); --no-prior-field: the raw prior")
@@ -333,7 +339,8 @@ def _optim_config(a):
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
-        own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k,
+        own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
+        vote_flip_px=a.vote_flip_px,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})

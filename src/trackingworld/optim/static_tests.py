@@ -5,9 +5,9 @@ masks' dynamic and ambiguous ones) is judged by the best static point it has wit
 objective with its offsets eliminated, a few Gauss-Newton steps per track). A track whose offsets stay below
 epsilon is static (:func:`fits_static`); one that holds a static point around its query frame and then slips
 off it is that point, seen in its run only (:func:`rescue_slipped`, ``optim.slip``); a static track's
-observations off its point are not of it (:func:`static_outliers`); a track seen once takes the verdict of its
-tested neighbours (:func:`vote_seen_once`). The fits run in float32 and in chunks of FIT_CHUNK tracks, on at
-most about ``test_frames`` of each track's visible frames (:func:`spread_observations`).
+observations off its point are not of it (:func:`static_outliers`); a track seen once, or in a few frames
+only, takes the verdict of its neighbours seen in more (:func:`vote_short`). The fits run in float32 and in chunks
+of FIT_CHUNK tracks, on at most about ``test_frames`` of each track's visible frames (:func:`spread_observations`).
 
 Shapes: ``uv [N,T,2]`` px, ``D [N,T]`` metres (the depth target), ``vis [N,T]`` bool, ``qf [N]`` query frames,
 ``R [T,3,3]``, ``t [T,3]`` world-to-camera (tensors), ``K [3,3]``; ``tracks`` are indices into N.
@@ -132,9 +132,9 @@ def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) 
     return out
 
 
-def vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.ndarray | None = None,
-                   colour_sigma: float = 0.0) -> np.ndarray:
-    """``[n]`` bool: dynamic or not, for the tracks ``once`` [n] (indices) seen in their query frame only, by the
+def vote_short(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.ndarray | None = None,
+               colour_sigma: float = 0.0) -> np.ndarray:
+    """``[n]`` bool: dynamic or not, for the tracks ``once`` [n] (indices) seen too briefly to be tested, by the
     inverse-distance-weighted vote of the ``k`` image-nearest ``voters`` (indices of tested tracks) visible in
     that frame, each voting its ``dynamic`` flag ([N] bool), weights 1 / 3D distance of the points lifted with
     the prior ``D`` [N,T] metres (a voter across a depth edge barely counts), times a Gaussian of width

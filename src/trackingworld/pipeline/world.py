@@ -46,7 +46,7 @@ from trackingworld.optim.static_tests import (
     rescue_slipped,
     spread_observations,
     static_outliers,
-    vote_seen_once,
+    vote_short,
 )
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.inputs import Inputs, resize_stack
@@ -74,7 +74,7 @@ DEPTH_MOVER_ROUNDS = 2  # rounds of (fields of the static tracks, depth-discrepa
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
-VOTE_CELL_PX = 4  # the tested tracks a track seen once is voted on by: one per (query frame, 4 px square)
+VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
 FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
@@ -113,7 +113,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
              colours: np.ndarray | None = None) -> dict:
     """Stages 1-3 on dense tracks ``tr`` (processing resolution), the depth prior ``[T,h,w]`` metres, the
     coarse masks ``[T,h,w]`` and K ``[3,3]``; ``refine_focal``: the focal length is refined in stage 2;
-    ``colours`` [N,3] uint8: each track's RGB at its query pixel (the vote of the tracks seen once; None: that
+    ``colours`` [N,3] uint8: each track's RGB at its query pixel (the vote of the short tracks; None: that
     vote by distance alone). Returns a
     dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world metres, ``is_dynamic [N]``, ``labels [N]`` (mask
     labels), ``depth [T,h,w]`` consistent video depth, ``K [3,3]`` (refined or as given) and ``info`` (losses,
@@ -303,15 +303,30 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
 
-    if len(once):  # (own test only)
+    if own:
         with tm("rebuild_static"):
-            # a track seen once cannot be tested: it takes the verdict of the tested tracks nearest it (one per
-            # query frame and VOTE_CELL_PX square, prior-lifted 3D distance), the depth-mover test's included
-            multi = np.flatnonzero(~single)
-            voters = multi[cell_representatives(tr.queries[multi], VOTE_CELL_PX)]
-            colour = colours is not None and cfg.vote_colour_sigma > 0
-            dynamic[once] = vote_seen_once(once, voters, dynamic, uv, D, vis, qf, K,
-                                           cfg.vote_k if colour else cfg.idw_k, colours, cfg.vote_colour_sigma)
+            # a track seen once cannot be tested, and one seen in a few frames cannot fail the test: each takes the
+            # verdict of the tracks seen in more frames nearest it (one per query frame and VOTE_CELL_PX square,
+            # prior-lifted 3D distance and colour), the depth-mover test's included
+            seen = vis.sum(1)
+            voters = np.flatnonzero(seen > cfg.vote_short)
+            voters = voters[cell_representatives(tr.queries[voters], VOTE_CELL_PX)]
+            short = np.union1d(once, np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short)))
+            if len(short):
+                colour = colours is not None and cfg.vote_colour_sigma > 0
+                was = dynamic[short]
+                dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K,
+                                            cfg.vote_k if colour else cfg.idw_k, colours, cfg.vote_colour_sigma)
+                # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
+                flip = short[dynamic[short] & ~was & (seen[short] >= 2)]
+                if len(flip) and cfg.vote_flip_px > 0:
+                    worst = fits_static_chunked(flip, uv, Dfit, vis, K, R, t, cfg, device)[2]
+                    dynamic[flip[worst <= cfg.vote_flip_px]] = False
+                # tracks the vote made static get their static point (the refit below does it when on)
+                now_static = short[~dynamic[short] & was & (seen[short] >= 2)]
+                if len(now_static) and not (cfg.static_refit_dc > 0 and not cfg.no_depth_consistency):
+                    fit_static_points(now_static, uv, Dfit, vis, xyz, K, R, t, cfg, device)
+                info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
             info["dynamic"] = int(dynamic.sum())
 
     if cfg.static_outliers and p.offsets:
@@ -594,7 +609,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
         if optim_cfg.verbose:
             print("[depth_movers] off, [static_refit] off: --depth none gives no depth to compare with",
                   file=sys.stderr, flush=True)
-    colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the tracks seen once
+    colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the short tracks
     out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine, colors)
     if report is not None:
         report.update(out["info"])
