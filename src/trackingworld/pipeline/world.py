@@ -322,9 +322,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                 if len(flip) and cfg.vote_flip_px > 0:
                     worst = fits_static_chunked(flip, uv, Dfit, vis, K, R, t, cfg, device)[2]
                     dynamic[flip[worst <= cfg.vote_flip_px]] = False
-                # tracks the vote made static get their static point (the refit below does it when on)
+                # tracks the vote made static get their static point now: the off-point observations are judged
+                # against it next (a track seen once has its point from the rebuild above)
                 now_static = short[~dynamic[short] & was & (seen[short] >= 2)]
-                if len(now_static) and not (cfg.static_refit_dc > 0 and not cfg.no_depth_consistency):
+                if len(now_static):
                     fit_static_points(now_static, uv, Dfit, vis, xyz, K, R, t, cfg, device)
                 info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
             info["dynamic"] = int(dynamic.sum())
