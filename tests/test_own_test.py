@@ -249,3 +249,22 @@ def test_a_short_masked_track_the_vote_makes_static_gets_its_static_point():
     assert not on["is_dynamic"][who].any()
     np.testing.assert_allclose(on["xyz"][who][:, 0, 2], 5.0, atol=0.25)  # world z of the wall (camera 0 at z 0)
     assert on["visible"][who].sum(1).min() >= 4
+
+
+def test_in_a_video_barely_longer_than_vote_short_the_tracks_seen_once_still_take_a_vote():
+    """An 8-frame video (no track is seen in more than ``vote_short`` = 10 frames): tracks seen once on the
+    static wall inside a (wrong) dynamic mask take the verdict of the masked tracks seen in all 8 frames around
+    them, which fit the wall (static), instead of keeping the mask's label."""
+    tr, prior, *_ = _wall_scene()
+    x0, x1, y0, y1 = 8, 32, 44, 68
+    masks = np.zeros(prior.shape, bool)
+    masks[:, y0:y1, x0:x1] = True
+    q = tr.queries
+    inner = (q[:, 1] >= x0 + 4) & (q[:, 1] < x1 - 4) & (q[:, 2] >= y0 + 4) & (q[:, 2] < y1 - 4)
+    once = np.flatnonzero(inner)[::5]
+    vis = tr.visible.copy()
+    vis[once, 1:] = False
+    tr = TrackResult(tr.tracks, vis, tr.confidence, tr.queries)
+    out = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False), {})
+    assert vis.sum(1).max() <= OptimConfig().vote_short
+    assert len(once) > 20 and not out["is_dynamic"][once].any()

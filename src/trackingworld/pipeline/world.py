@@ -314,9 +314,18 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             short = np.union1d(once, np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short)))
             if len(short):
                 colour = colours is not None and cfg.vote_colour_sigma > 0
+                k = cfg.vote_k if colour else cfg.idw_k
                 was = dynamic[short]
-                dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K,
-                                            cfg.vote_k if colour else cfg.idw_k, colours, cfg.vote_colour_sigma)
+                dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours,
+                                            cfg.vote_colour_sigma)
+                # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
+                # tracks seen once take the vote of those seen in two or more, as with vote_short 1
+                bare = once[~vis[voters].any(0)[qf[once]]] if len(voters) else once
+                if len(bare):
+                    multi = np.flatnonzero(seen >= 2)
+                    multi = multi[cell_representatives(tr.queries[multi], VOTE_CELL_PX)]
+                    dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours,
+                                               cfg.vote_colour_sigma)
                 # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
                 flip = short[dynamic[short] & ~was & (seen[short] >= 2)]
                 if len(flip) and cfg.vote_flip_px > 0:
