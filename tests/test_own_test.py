@@ -65,6 +65,16 @@ def test_the_colour_weighted_vote_reads_the_side_a_blurred_prior_hides():
     np.testing.assert_array_equal(by_sigma_0, by_distance)
 
 
+def masked_box(shape: tuple, queries: np.ndarray, box: tuple[int, int, int, int], margin: int = 4):
+    """A (wrong) dynamic mask ``[T,H,W]`` over ``box`` (x0, x1, y0, y1 px) in every frame, and ``[N]`` bool: the
+    tracks whose query pixel lies at least ``margin`` px inside it (in the sure-dynamic region)."""
+    x0, x1, y0, y1 = box
+    masks = np.zeros(shape, bool)
+    masks[:, y0:y1, x0:x1] = True
+    x, y = queries[:, 1], queries[:, 2]
+    return masks, (x >= x0 + margin) & (x < x1 - margin) & (y >= y0 + margin) & (y < y1 - margin)
+
+
 def _wall_scene():
     """A slanted wall (z 4-6 m) seen by a camera sliding 5 cm a frame along x; every pixel of frame 0 tracked.
     The first track of each 8 px cell in REGION (a stage-2 representative) slips from frame 4 on (6 px a frame:
@@ -232,11 +242,7 @@ def test_a_short_masked_track_the_vote_makes_static_gets_its_static_point():
     wall, and are static at the wall's depth with their frames kept (their point is fitted before the off-point
     observations are judged against it)."""
     tr, prior, *_ = _slow_mover_scene()
-    x0, x1, y0, y1 = 60, 84, 20, 44
-    masks = np.zeros(prior.shape, bool)
-    masks[:, y0:y1, x0:x1] = True
-    q = tr.queries
-    inner = (q[:, 1] >= x0 + 4) & (q[:, 1] < x1 - 4) & (q[:, 2] >= y0 + 4) & (q[:, 2] < y1 - 4)
+    masks, inner = masked_box(prior.shape, tr.queries, (60, 84, 20, 44))
     seen = tr.visible.sum(1)
     who = np.flatnonzero(inner & (seen == 5))
     assert len(who) > 50
@@ -256,11 +262,7 @@ def test_in_a_video_barely_longer_than_vote_short_the_tracks_seen_once_still_tak
     static wall inside a (wrong) dynamic mask take the verdict of the masked tracks seen in all 8 frames around
     them, which fit the wall (static), instead of keeping the mask's label."""
     tr, prior, *_ = _wall_scene()
-    x0, x1, y0, y1 = 8, 32, 44, 68
-    masks = np.zeros(prior.shape, bool)
-    masks[:, y0:y1, x0:x1] = True
-    q = tr.queries
-    inner = (q[:, 1] >= x0 + 4) & (q[:, 1] < x1 - 4) & (q[:, 2] >= y0 + 4) & (q[:, 2] < y1 - 4)
+    masks, inner = masked_box(prior.shape, tr.queries, (8, 32, 44, 68))
     once = np.flatnonzero(inner)[::5]
     vis = tr.visible.copy()
     vis[once, 1:] = False

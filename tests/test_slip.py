@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from test_own_test import REGION, K, _slip_late, _wall_scene
+from test_own_test import REGION, K, _slip_late, _wall_scene, masked_box
 from trackingworld.config import OptimConfig
 from trackingworld.optim.slip import frames_around, long_runs, run_around
 from trackingworld.pipeline import world
@@ -42,12 +42,8 @@ def test_a_masked_static_track_that_slips_late_is_static_in_its_run():
     frames are static, seen in frames 0-3 only, with the run test; dynamic without it. Those that slip in 6 of 8
     and a track moving throughout are dynamic either way."""
     tr, prior, _, _, mover, others = _wall_scene()
-    x0, x1, y0, y1 = REGION
-    masks = np.zeros(prior.shape, bool)
-    masks[:, y0:y1, x0:x1] = True
-    q = tr.queries
-    inner = others[(q[others, 1] >= x0 + 4) & (q[others, 1] < x1 - 4) & (q[others, 2] >= y0 + 4)
-                   & (q[others, 2] < y1 - 4)]
+    masks, box = masked_box(prior.shape, tr.queries, REGION)
+    inner = others[box[others]]
     late4, late6 = inner[:10], inner[10:20]
     tracks = tr.tracks.copy()
     _slip_late(tracks, late4, 4)
@@ -63,4 +59,5 @@ def test_a_masked_static_track_that_slips_late_is_static_in_its_run():
     assert on["info"]["classify"]["slipped"] >= len(late4)
     # the run's static points are where the wall is: within 2% of the prior's depth at the query frame
     z = on["xyz"][late4, 0, 2]
-    np.testing.assert_allclose(z, prior[0, q[late4, 2].astype(int), q[late4, 1].astype(int)], rtol=0.02)
+    x, y = tr.queries[late4, 1].astype(int), tr.queries[late4, 2].astype(int)
+    np.testing.assert_allclose(z, prior[0, y, x], rtol=0.02)

@@ -327,13 +327,14 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                     dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours,
                                                cfg.vote_colour_sigma)
                 # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
-                flip = short[dynamic[short] & ~was & (seen[short] >= 2)]
+                tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's above
+                flip = short[dynamic[short] & ~was & tested]
                 if len(flip) and cfg.vote_flip_px > 0:
                     worst = fits_static_chunked(flip, uv, Dfit, vis, K, R, t, cfg, device)[2]
                     dynamic[flip[worst <= cfg.vote_flip_px]] = False
                 # tracks the vote made static get their static point now: the off-point observations are judged
-                # against it next (a track seen once has its point from the rebuild above)
-                now_static = short[~dynamic[short] & was & (seen[short] >= 2)]
+                # against it next
+                now_static = short[~dynamic[short] & was & tested]
                 if len(now_static):
                     fit_static_points(now_static, uv, Dfit, vis, xyz, K, R, t, cfg, device)
                 info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
