@@ -119,6 +119,27 @@ def test_stage2_flags_the_unmasked_mover_and_refines_poses():
         stage2.explicit_objective(R2, t2, X2, torch.zeros_like(O), p)) + 1e-12
 
 
+def test_a_warped_prior_tilts_the_poses_less_when_the_bundle_adjustment_weighs_its_depth_term_less():
+    """``ba_dc_weight``: a prior 20% too far on one side of the image pulls stage 2's poses round toward it at the
+    full depth weight; weighed a hundredth, the parallax of a camera sliding along the wall decides them."""
+    from test_own_test import K as KK
+    from test_own_test import W as WW
+    from test_own_test import _wall_scene
+
+    tr, prior, poses, *_ = _wall_scene()
+    xs = np.arange(WW)[None, None, :] / (WW - 1) - 0.5
+    warped = (prior * (1 + 0.4 * xs)).astype(np.float32)
+    turn = {}
+    for w in (1.0, 0.01):
+        out = world.optimise(tr, warped, np.zeros(prior.shape, bool), KK, OptimConfig(verbose=False, ba_dc_weight=w),
+                             {})
+        turn[w] = max(Rotation.from_matrix(P[:3, :3]).magnitude() for P in out["poses_c2w"])  # true: none
+        err = np.abs(out["poses_c2w"][:, :3, 3] - poses[:, :3, 3]).max()
+        if w < 1:
+            assert err < 0.02  # metres, over a 35 cm slide
+    assert np.degrees(turn[1.0]) > 0.5 and turn[0.01] < 0.1 * turn[1.0]
+
+
 def test_stage2_lm_beats_a_short_adam_run_on_the_same_loss():
     uv, z, vis, c2w, moving = _scene(T=10, N=600, n_moving=60)
     cfg, p, R, t, X0 = _stage2_start(uv, z, vis)

@@ -77,6 +77,10 @@ class OptimConfig:
     # stage 2: dynamic background refinement
     lambda_ba: float = 1.0
     lambda_dc: float = 1.0
+    # stage 2's bundle adjustment weighs its depth term by lambda_dc times this (the static fits and stage 3 keep
+    # lambda_dc). Lower trusts the parallax over the prior's smooth warp, higher the prior's per-frame scale; ten
+    # synthetic scenes at 0.3 / 0.1 / 0.03 gained on some and lost on others, 1 kept (docs/results.md, stop 40)
+    ba_dc_weight: float = 1.0
     dc_space: str = "log"  # stage-2 depth residual: log(z / D) (default) | metres (the paper as written)
     lambda_asap: float = 5.0
     epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object

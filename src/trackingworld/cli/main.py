@@ -242,6 +242,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
     g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
     g.add_argument("--lambda-dc", type=float, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")
+    g.add_argument("--ba-dc-weight", type=float, default=d.ba_dc_weight, metavar="X",
+                   help="stage 2's bundle adjustment weighs the depth term by --lambda-dc times this (below 1: the "
+                        "parallax trusted over the prior's shape)")
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
@@ -330,7 +333,7 @@ def _optim_config(a):
     return OptimConfig(
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
         test_stat=a.test_stat, static_outliers=a.static_outliers, stage2_reject=a.stage2_reject,
-        lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc,
+        lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc, ba_dc_weight=a.ba_dc_weight,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target,

@@ -148,7 +148,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             poses, info["stage1"] = initial_poses(uv[s2], D[s2], obs2, K, cfg, rng, device, log)
 
     with tm("stage2"):
-        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], obs2, K, cfg, dtype, device)
+        cfg_ba = replace(cfg, lambda_dc=cfg.lambda_dc * cfg.ba_dc_weight)  # the bundle adjustment's depth weight
+        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], obs2, K, cfg_ba, dtype, device)
         R, t = lie.c2w_to_w2c(poses, dtype, device)
         X0 = stage2.init_points(R, t, p)
         loss0 = float(stage2.loss(R, t, X0, p))
@@ -194,7 +195,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
         if not np.array_equal(obs2, vis[s2]):  # capped: the moving-background test on every observation
-            full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg, dtype, device)
+            full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg_ba, dtype, device)
             moving_s2 = moving_tracks(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()
