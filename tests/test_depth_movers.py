@@ -4,7 +4,7 @@ import numpy as np
 
 from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
 from trackingworld.optim.depth_movers import depth_movers, less_fields, local_majority, log_depth_ratios
-from trackingworld.pipeline import world
+from trackingworld.pipeline import fields as prior_fields
 
 K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
 
@@ -69,10 +69,10 @@ def test_depth_discrepancy_removes_the_priors_smooth_warp_and_finds_the_epipolar
     static = np.arange(N)
     k, fr, e_raw = log_depth_ratios(static, vis[static], xyz, D, c2w)
     assert len(k) == N * T and (np.diff(fr) >= 0).all()
-    refs = world.reference_ratios(static, uv, vis, xyz, D, c2w)
+    refs = prior_fields.reference_ratios(static, uv, vis, xyz, D, c2w)
     got = np.zeros(N, bool)
     for _ in range(2):  # as the pipeline: the fields again without the movers of the first round
-        fields = world.static_fields(static[~got], uv, vis, xyz, D, c2w, (240, 320), (8, 6), 0.01, refs=refs)
+        fields = prior_fields.static_fields(static[~got], uv, vis, xyz, D, c2w, (240, 320), (8, 6), 0.01, refs=refs)
         keep, e = less_fields(uv[static[k], fr], fr, e_raw, fields)
         assert keep.all()
         got = depth_movers(k, fr, uv[static[k], fr], e, N, T, (240, 320), 0.05, 20)

@@ -17,6 +17,7 @@ from trackingworld.optim import lie, stage1, stage2, stage3, static_tests
 from trackingworld.optim.densify import cell_cap_mask, thinned_observations
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import build_clips, chain_clips, clip_frames, initial_poses, solve_clips_lm
+from trackingworld.pipeline import fields as prior_fields
 from trackingworld.pipeline import world
 from trackingworld.synth import render_and_write
 
@@ -500,14 +501,14 @@ def test_stage3_target_frame_removes_each_frames_prior_scale():
     D = z_true * scale[None]
     vis = np.ones((Ns + Nd, T), bool)
     dyn, static = np.arange(Ns, Ns + Nd), np.arange(Ns)
-    fixed = world.stage3_target("frame", xyz, uv, vis, D, dyn, static, c2w, K)
+    fixed = prior_fields.stage3_target("frame", xyz, uv, vis, D, dyn, static, c2w, K)
     assert np.allclose(fixed, z_true[dyn], rtol=1e-9)
-    raw = world.stage3_target("prior", xyz, uv, vis, D, dyn, static, c2w, K)
+    raw = prior_fields.stage3_target("prior", xyz, uv, vis, D, dyn, static, c2w, K)
     assert np.abs(raw / z_true[dyn] - 1).max() > 0.05
     with pytest.raises(ValueError, match="dc_target"):
-        world.stage3_target("aligned", xyz, uv, vis, D, dyn, static, c2w, K)
+        prior_fields.stage3_target("aligned", xyz, uv, vis, D, dyn, static, c2w, K)
     with pytest.raises(ValueError, match="shape"):
-        world.stage3_target("field", xyz, uv, vis, D, dyn, static, c2w, K)
+        prior_fields.stage3_target("field", xyz, uv, vis, D, dyn, static, c2w, K)
 
 
 def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cannot():
@@ -530,7 +531,7 @@ def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cann
     D = z_true * np.exp(log_warp)
     vis = np.ones((Ns + Nd, T), bool)
     dyn, static = np.arange(Ns, Ns + Nd), np.arange(Ns)
-    err = {m: np.median(np.abs(np.log(world.stage3_target(m, xyz, uv, vis, D, dyn, static, c2w, K, (240, 320))
+    err = {m: np.median(np.abs(np.log(prior_fields.stage3_target(m, xyz, uv, vis, D, dyn, static, c2w, K, (240, 320))
                                       / z_true[dyn]))) for m in ("frame", "field")}
     assert err["field"] < 0.01 < err["frame"]
     # the static tracks within the margin (3 px) of a dynamic one, their prior blurred with the object's
@@ -539,7 +540,7 @@ def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cann
     d_near = np.linalg.norm(uv_s[:, None] - uv[dyn, 0][None], axis=-1).min(1)
     D_border = D.copy()
     D_border[np.flatnonzero(d_near < 3)] *= 0.96
-    target = partial(world.stage3_target, "field", xyz, uv, vis, dyn=dyn, static=static, poses=c2w, K=K,
+    target = partial(prior_fields.stage3_target, "field", xyz, uv, vis, dyn=dyn, static=static, poses=c2w, K=K,
                      shape=(240, 320))
     assert np.allclose(target(D=D), target(D=D_border))
     no_margin = ((8, 6), 0.01, 0.0, 3.0)

@@ -8,6 +8,7 @@ from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
 from trackingworld.optim import lie, static_tests
 from trackingworld.optim.ratio_field import fit_log_field
+from trackingworld.pipeline import fields as prior_fields
 from trackingworld.pipeline import world
 
 K = intrinsics_matrix(300.0, 300.0, 160.0, 120.0)
@@ -30,7 +31,7 @@ def test_corrected_prior_scales_the_visible_observations_by_their_frames_field(r
     fields = [fit_log_field(rng.uniform([0, 0], [319, 239], (300, 2)), rng.normal(0.1 * t, 0.05, 300), shape)
               for t in range(T)]
     fields[1] = None
-    out = world.corrected_prior(D, uv, vis, fields)
+    out = prior_fields.corrected_prior(D, uv, vis, fields)
     want = D.copy()
     for t in (0, 2):
         want[vis[:, t], t] *= np.exp(fields[t](uv[vis[:, t], t]))
@@ -57,12 +58,12 @@ def test_refit_against_the_corrected_prior_places_short_baseline_points_better(r
     vis = np.ones((N, T), bool)
     refs = np.arange(0, N, 3)
     xyz_ref = np.repeat(X[:, None], T, 1).astype(np.float32)
-    fields = world.static_fields(refs, uv, vis, xyz_ref, D, c2w, (240, 320), (8, 6), 0.01)
+    fields = prior_fields.static_fields(refs, uv, vis, xyz_ref, D, c2w, (240, 320), (8, 6), 0.01)
     R, t = lie.c2w_to_w2c(c2w, torch.float64, "cpu")
     cfg = OptimConfig()
     err = {}
     for name, prior, lam, iters in (("stage-2 weights, raw prior", D, cfg.lambda_dc, 6),
-                                    ("refit", world.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc,
+                                    ("refit", prior_fields.corrected_prior(D, uv, vis, fields), cfg.static_refit_dc,
                                      world.REFIT_ITERS)):
         xyz = np.zeros((N, T, 3), np.float32)
         static_tests.fit_static_points(np.arange(N), uv, prior, vis, xyz, K, R, t, OptimConfig(lambda_dc=lam), "cpu",

@@ -87,7 +87,7 @@ def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray
 
 def less_fields(uv_obs, t, e, fields) -> tuple[np.ndarray, np.ndarray]:
     """Observations (pixels ``uv_obs [M,2]``, frame ``t [M]`` ascending, log ratio ``e [M]``) less their frame's
-    field (``fields``: per frame a callable of pixels, ``pipeline.world.static_fields``, or None): (kept [M]
+    field (``fields``: per frame a callable of pixels, ``pipeline.fields.static_fields``, or None): (kept [M]
     bool: the frame has a field, e - field at the kept ones)."""
     bounds = np.searchsorted(t, np.arange(len(fields) + 1))
     keep = np.ones(len(t), bool)

@@ -11,7 +11,6 @@ from functools import partial
 import cv2
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from trackingworld.config import (
     DC_TARGETS,
@@ -23,38 +22,40 @@ from trackingworld.config import (
     RunConfig,
 )
 from trackingworld.errors import InputError
-from trackingworld.geometry import focal_length, invert_pose, transform, unproject
+from trackingworld.geometry import focal_length, transform, unproject
 from trackingworld.io.result import Result
-from trackingworld.optim import lie, stage2, stage3
+from trackingworld.optim import lie, stage2
 from trackingworld.optim.densify import (
     cell_cap_mask,
     cell_representatives,
     propagate_ratio,
     ratio_maps,
-    thinned_observations,
 )
-from trackingworld.optim.depth_movers import depth_movers, less_fields, log_depth_ratios
-from trackingworld.optim.edge_prior import inner_prior
-from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
-from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
     moving_tracks,
     rescue_slipped,
-    spread_observations,
     static_outliers,
     vote_short,
 )
 from trackingworld.pipeline.baseline import sample_colors
+from trackingworld.pipeline.dynamic import place_dynamic
+from trackingworld.pipeline.fields import (
+    camera_depths,
+    corrected_prior,
+    depth_mover_test,
+    edge_free_prior,
+    reference_ratios,
+    static_fields,
+)
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
-from trackingworld.tracking2d.base import TrackResult, hold_invisible
-from trackingworld.tracking2d.flow_tracker import sample_image
+from trackingworld.tracking2d.base import TrackResult
 
 
 @contextmanager
@@ -70,8 +71,6 @@ def timed(timings: dict, name: str, verbose: bool):
         print(f"[{name}] done in {dt:.1f} s", file=sys.stderr, flush=True)
 
 
-DEPTH_MOVER_ROUNDS = 2  # rounds of (fields of the static tracks, depth-discrepancy test)
-MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
 VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
@@ -103,11 +102,6 @@ def solve_stage2(R, t, X, p: stage2.BAProblem, cfg: OptimConfig, log=None):
     return sol, p, rejected
 
 
-def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
-    """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame."""
-    return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
-
-
 def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarray, cfg: OptimConfig,
              timings: dict, device: str = "cpu", seed: int = 0, refine_focal: bool = False,
              colours: np.ndarray | None = None) -> dict:
@@ -132,7 +126,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         static_idx = np.flatnonzero(labels == STATIC)
         D = D_raw  # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior)
         if cfg.dc_edge_sigma_px > 0 and len(static_idx):
-            D = _edge_free(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D_raw)
+            D = edge_free_prior(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D_raw)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
         obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
@@ -299,7 +293,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            movers, thinned = _depth_movers(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
+            movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
                                             prior.shape[1:], cfg)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
@@ -363,40 +357,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
     with tm("stage3"):
-        dyn = np.flatnonzero(dynamic)
-        D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
-        if cfg.dc_edge_sigma_px > 0 and len(dyn):
-            D3 = _edge_free(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
-        target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, np.flatnonzero(~dynamic), poses, K,
-                               prior.shape[1:], (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px,
-                                                 cfg.dc_field_temporal),
-                               thinned)
-        if len(dyn):
-            ctrl = cell_representatives(tr.queries[dyn], cfg.dynamic_cell)
-            cd = dyn[ctrl]
-            obs = cell_cap_mask(tr.tracks[cd], vis[cd], qf[cd], cfg.dynamic_cell, cfg.cell_cap)
-            has = obs.any(1)
-            ctrl, cd, obs = ctrl[has], cd[has], obs[has]
-            xyz[cd] = _dynamic_tracks(uv[cd], obs, target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device,
-                                      log, info)
-            # every other visible observation of a dynamic track follows the optimised ones
-            follow = vis[dyn].copy()
-            follow[ctrl] &= ~obs
-            if follow.any():
-                xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
-            # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
-            if cfg.carry_k > 0:
-                # the image motion's weight in the donors' search: the distance two tracks drift apart in
-                # carry_motion_frames frames at the dynamic tracks' median depth, per px per frame of difference
-                few = dyn[:: max(1, len(dyn) // 4000)]
-                z = D3[few][vis[few]]
-                scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
-                xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn],
-                                        motion_scale=scale)
-            else:
-                xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
-            info["stage3_controls"] = int(len(ctrl))
-            info["stage3_observations"] = int(obs.sum())
+        place_dynamic(np.flatnonzero(dynamic), np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K,
+                      cfg, dtype, device, log, info, thinned)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
@@ -404,191 +366,6 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K) * prior
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "visible": vis, "info": info}
-
-
-def corrected_prior(D, uv, vis, fields) -> np.ndarray:
-    """The prior sampled at the tracks, ``D [N,T]`` metres, times each frame's field at the visible observations
-    (``fields``: per frame a ``LogField`` or None: that frame unchanged; :func:`static_fields`): the prior's
-    per-frame scale and smooth warp removed where the optimised static points measured them. A copy; hidden
-    observations unchanged. uv [N,T,2] px, vis [N,T]. The field is sampled from its image, bilinear between
-    pixels: within 3e-4 (relative) of evaluating it at each point, and 20x faster (9.6M points: 0.04 s)."""
-    out = D.copy()
-    vis_t = np.ascontiguousarray(vis.T)
-    for t, f in enumerate(fields):
-        w = np.flatnonzero(vis_t[t])
-        if f is not None and len(w):
-            out[w, t] *= sample_image(np.exp(f.image()), uv[w, t].astype(np.float32))
-    return out
-
-
-def _edge_free(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float,
-               base: np.ndarray) -> np.ndarray:
-    """``[N,T]`` metres: at the tracks ``idx`` the prior averaged over those tracks' own pixels away from the
-    depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the other's blur; ``base``
-    [N,T] at the others. uv [N,T,2] px, vis [N,T]. The tracks are selected through the visibility rather than
-    copied out (120 frames: 1.8 -> 0.7 s)."""
-    member = np.zeros(len(vis), bool)
-    member[idx] = True
-    seen = vis & member[:, None]
-    out = sample_maps(inner_prior(prior, uv, seen, sigma), uv, seen)
-    out[~member] = base[~member]
-    return out
-
-
-def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
-    """The references of the appendix's scale propagation among ``tracks`` [n] (indices, a set: a cell keeps its
-    lowest-index track; None: all), selected through a mask rather than copied out: one visible observation per
-    ``cell`` px square of each frame, in frame order. Returns (track [R], frame [R], ratio [R] = camera z of its
-    world point / prior depth)."""
-    member = None
-    if tracks is not None:
-        member = np.zeros(len(vis), bool)
-        member[tracks] = True
-    n, t = thinned_observations(uv, vis, cell, member)
-    z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
-    return n, t, z / np.maximum(D[n, t], 1e-6)
-
-
-def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float, float] | None = None, refs=None) -> np.ndarray:
-    """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
-    ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
-    tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
-    robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
-    gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's, temporal coupling of the frames' fields; None: OptimConfig's defaults), which
-    needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
-    target = D[dyn]
-    if mode == "prior":
-        return target
-    if mode not in DC_TARGETS:
-        raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
-    if mode == "field" and shape is None:
-        raise ValueError("dc_target 'field' needs the image shape (h, w)")
-    if field is None:
-        field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px,
-                 OptimConfig.dc_field_temporal)
-    cells, smooth, margin, temporal = field
-    vis_t = np.ascontiguousarray(vis[dyn].T)
-    if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs, temporal)
-        for tt, f in enumerate(fields):
-            w = np.flatnonzero(vis_t[tt])
-            if f is not None and len(w):
-                target[w, tt] *= np.exp(f(uv[dyn[w], tt]))
-        return target
-    n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
-    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
-    for tt in range(vis.shape[1]):
-        ref = slice(bounds[tt], bounds[tt + 1])
-        w = np.flatnonzero(vis_t[tt])
-        if bounds[tt] == bounds[tt + 1] or not len(w):
-            continue
-        if mode == "frame":
-            target[w, tt] *= np.median(ratio[ref])
-        else:
-            target[w, tt] *= propagate_ratio(uv[n[ref], tt], D[n[ref], tt], ratio[ref], uv[dyn[w], tt],
-                                             D[dyn[w], tt], K, 4)
-    return target
-
-
-def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells: tuple[int, int], smooth: float,
-                  near=None, margin: float = 0.0, refs=None, temporal: float = 0.0) -> list:
-    """Per frame, the robust smooth field (``optim.ratio_field.LogField``, log units) of the ratio camera z /
-    prior of the ``static`` tracks' thinned observations (None for a frame without any). ``near`` (track
-    indices) with ``margin`` px: the static observations this close to one of theirs visible in the frame are
-    left out while at least MIN_FIELD_SAMPLES remain. ``refs``: the thinned observations of a superset of
-    ``static`` already made (``reference_ratios``), kept where their track is in ``static``. ``temporal`` > 0:
-    the frames' fields are fitted together, each one's shape held near its neighbours' in time
-    (``ratio_field.fit_log_fields``)."""
-    if refs is None:
-        n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
-    else:
-        member = np.zeros(vis.shape[0], bool)
-        member[static] = True
-        n, t, ratio = (a[member[refs[0]]] for a in refs)
-    bounds = np.searchsorted(t, np.arange(vis.shape[1] + 1))
-    near_t = None if near is None or margin <= 0 else np.ascontiguousarray(vis[near].T)
-    out = []
-    for tt in range(vis.shape[1]):
-        ref = slice(bounds[tt], bounds[tt + 1])
-        if bounds[tt] == bounds[tt + 1]:
-            out.append(None)
-            continue
-        ref_uv, ref_ratio = uv[n[ref], tt], ratio[ref]
-        w = np.flatnonzero(near_t[tt]) if near_t is not None else []
-        if len(w):
-            close = cKDTree(uv[near[w], tt]).query(ref_uv, k=1, workers=-1)[0] <= margin
-            if (~close).sum() >= MIN_FIELD_SAMPLES:
-                ref_uv, ref_ratio = ref_uv[~close], ref_ratio[~close]
-        out.append((ref_uv, np.log(np.maximum(ref_ratio, 1e-6))))
-    return fit_log_fields(out, shape, cells, smooth, temporal)
-
-
-def _depth_movers(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig):
-    """The depth-discrepancy test (``optim.depth_movers``) of the tracks ``cand`` (indices) against the fields of
-    the ``static`` ones, in DEPTH_MOVER_ROUNDS rounds (the fields again without the movers found: they pull them).
-    Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by stage 3's target)."""
-    thinned = reference_ratios(static, uv, vis, xyz, D, poses)  # thinned once, filtered by static_fields
-    # at most about test_frames of each track's frames, spread over its span (as the classification)
-    obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
-    k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
-    uv_obs = uv[cand[k], t]
-    movers = np.zeros(len(cand), bool)
-    for _ in range(DEPTH_MOVER_ROUNDS):
-        ref = np.setdiff1d(static, cand[movers], assume_unique=True)
-        fields = static_fields(ref, uv, vis, xyz, D, poses, shape, cfg.dc_field_cells, cfg.dc_field_smooth,
-                               refs=thinned)
-        keep, e = less_fields(uv_obs, t, e_raw, fields)
-        movers = depth_movers(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
-                              cfg.depth_mover_log, cfg.depth_mover_window_px)
-    return movers, thinned
-
-
-def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
-    """World positions ``[Nd,T,3]`` of the dynamic tracks ``dyn``: ``xyz[dyn]`` except at the observations
-    ``follow [Nd,T]``, which get their own pixel ray at their target depth (``target [Nd,T]``) times the
-    IDW-propagated correction ``z_opt / target`` of the optimised control observations (``dyn[ctrl]`` where
-    ``ref_obs``)."""
-    T = follow.shape[1]
-    cd = dyn[ctrl]
-    corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
-    out = xyz[dyn]
-    follow_t, ref_t = np.ascontiguousarray(follow.T), np.ascontiguousarray(ref_obs.T)
-    for t in range(T):
-        w = np.flatnonzero(follow_t[t])
-        v = np.flatnonzero(ref_t[t])
-        if not len(w):
-            continue
-        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
-        out[w, t] = transform(poses[t], unproject(uv[dyn[w], t], r * target[w, t], K))
-    return out
-
-
-def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
-    """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` where ``vis`` (zero elsewhere: the caller
-    fills the hidden frames)."""
-    if cfg.no_dynamic_opt:  # "w/o D.O.T": the raw prior lifted with the final poses
-        return np.where(vis[..., None], transform(poses[None], unproject(uv, raw, K)), 0.0)
-    lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
-    nb = stage3.neighbours(transform(poses[None], unproject(uv, target, K)), vis, qf, cfg.arap_k)
-    p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device, cfg.ts_order)
-    d0 = p.target.clone()
-    e0 = float(stage3.ray_energy(d0, p))
-    if cfg.solver == "adam":
-        R, t = lie.c2w_to_w2c(poses, dtype, device)
-        Kt = torch.as_tensor(K, dtype=dtype, device=device)
-        X = stage3.solve_adam(p, d0, (R, t), Kt, cfg.adam_iters[2], cfg.adam_lr, log)
-        e1 = float(stage3.objective(X, p, (R, t), Kt))
-    else:
-        d = stage3.solve_amg(p, d0) if cfg.stage3_linear == "amg" else stage3.solve_cg(p, d0, log=log)
-        X = p.centre + p.ray * d[:, None]
-        e1 = float(stage3.ray_energy(d, p))
-    info["stage3"] = {"loss_init": e0, "loss": e1, "unknowns": int(p.target.shape[0])}
-    out = np.zeros(uv.shape[:2] + (3,))
-    kk, tt = np.nonzero(vis)
-    out[kk, tt] = X.detach().cpu().numpy()
-    return out
 
 
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,

@@ -1,0 +1,105 @@
+"""Stage 3 on the dynamic tracks (paper Sec. 3.3): their depth target, the control tracks the linear problem is
+solved over (``optim.stage3``), the other dynamic observations following their controls, and the hidden frames
+carried by their neighbours (``optim.hidden``). Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]``
+metres, world positions ``[N,T,3]`` metres, poses camera-to-world ``[T,4,4]``."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import focal_length, transform, unproject
+from trackingworld.optim import lie, stage3
+from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
+from trackingworld.optim.hidden import carry_hidden
+from trackingworld.pipeline.fields import camera_depths, edge_free_prior, stage3_target
+from trackingworld.tracking2d.base import hold_invisible
+
+
+def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: OptimConfig, dtype, device, log,
+                  info: dict, thinned=None) -> None:
+    """``xyz[dyn]`` (in place, every frame) <- stage 3's world positions of the dynamic tracks ``dyn`` (indices):
+    solved over one control track per (query frame, ``dynamic_cell`` px) cell, the other visible observations
+    following their controls' depth correction, the hidden frames carried (or held). ``static`` (indices): the
+    static tracks whose field sets the depth target; ``queries [N,3]`` (frame, x, y); ``D`` the prior at the tracks,
+    ``prior [T,h,w]`` its maps; ``thinned``: the static tracks' thinned observations when already made
+    (:func:`~trackingworld.pipeline.fields.reference_ratios`). Counts go to ``info``."""
+    D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
+    if cfg.dc_edge_sigma_px > 0 and len(dyn):
+        D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
+    target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
+                           (cfg.dc_field_cells, cfg.dc_field_smooth, cfg.dc_field_margin_px, cfg.dc_field_temporal),
+                           thinned)
+    if not len(dyn):
+        return
+    qf = queries[:, 0].astype(np.int64)
+    ctrl = cell_representatives(queries[dyn], cfg.dynamic_cell)
+    cd = dyn[ctrl]
+    obs = cell_cap_mask(uv[cd], vis[cd], qf[cd], cfg.dynamic_cell, cfg.cell_cap)
+    has = obs.any(1)
+    ctrl, cd, obs = ctrl[has], cd[has], obs[has]
+    xyz[cd] = _dynamic_tracks(uv[cd], obs, target[ctrl], D[cd], qf[cd], poses, K, cfg, dtype, device, log, info)
+    # every other visible observation of a dynamic track follows the optimised ones
+    follow = vis[dyn].copy()
+    follow[ctrl] &= ~obs
+    if follow.any():
+        xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
+    # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
+    if cfg.carry_k > 0:
+        # the image motion's weight in the donors' search: the distance two tracks drift apart in
+        # carry_motion_frames frames at the dynamic tracks' median depth, per px per frame of difference
+        few = dyn[:: max(1, len(dyn) // 4000)]
+        z = D3[few][vis[few]]
+        scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
+        xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale)
+    else:
+        xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
+    info["stage3_controls"] = int(len(ctrl))
+    info["stage3_observations"] = int(obs.sum())
+
+
+def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:
+    """World positions ``[Nd,T,3]`` of the dynamic tracks ``dyn``: ``xyz[dyn]`` except at the observations
+    ``follow [Nd,T]``, which get their own pixel ray at their target depth (``target [Nd,T]``) times the
+    IDW-propagated correction ``z_opt / target`` of the optimised control observations (``dyn[ctrl]`` where
+    ``ref_obs``)."""
+    T = follow.shape[1]
+    cd = dyn[ctrl]
+    corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
+    out = xyz[dyn]
+    follow_t, ref_t = np.ascontiguousarray(follow.T), np.ascontiguousarray(ref_obs.T)
+    for t in range(T):
+        w = np.flatnonzero(follow_t[t])
+        v = np.flatnonzero(ref_t[t])
+        if not len(w):
+            continue
+        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
+        out[w, t] = transform(poses[t], unproject(uv[dyn[w], t], r * target[w, t], K))
+    return out
+
+
+def _dynamic_tracks(uv, vis, target, raw, qf, poses, K, cfg: OptimConfig, dtype, device, log, info) -> np.ndarray:
+    """Stage 3 on the dynamic tracks: world positions ``[Nd,T,3]`` where ``vis`` (zero elsewhere: the caller
+    fills the hidden frames)."""
+    if cfg.no_dynamic_opt:  # "w/o D.O.T": the raw prior lifted with the final poses
+        return np.where(vis[..., None], transform(poses[None], unproject(uv, raw, K)), 0.0)
+    lambdas = (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_arap, cfg.lambda_ts)
+    nb = stage3.neighbours(transform(poses[None], unproject(uv, target, K)), vis, qf, cfg.arap_k)
+    p = stage3.build_problem(uv, vis, target, poses, K, nb, lambdas, dtype, device, cfg.ts_order)
+    d0 = p.target.clone()
+    e0 = float(stage3.ray_energy(d0, p))
+    if cfg.solver == "adam":
+        R, t = lie.c2w_to_w2c(poses, dtype, device)
+        Kt = torch.as_tensor(K, dtype=dtype, device=device)
+        X = stage3.solve_adam(p, d0, (R, t), Kt, cfg.adam_iters[2], cfg.adam_lr, log)
+        e1 = float(stage3.objective(X, p, (R, t), Kt))
+    else:
+        d = stage3.solve_amg(p, d0) if cfg.stage3_linear == "amg" else stage3.solve_cg(p, d0, log=log)
+        X = p.centre + p.ray * d[:, None]
+        e1 = float(stage3.ray_energy(d, p))
+    info["stage3"] = {"loss_init": e0, "loss": e1, "unknowns": int(p.target.shape[0])}
+    out = np.zeros(uv.shape[:2] + (3,))
+    kk, tt = np.nonzero(vis)
+    out[kk, tt] = X.detach().cpu().numpy()
+    return out
