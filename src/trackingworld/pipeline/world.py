@@ -1,4 +1,8 @@
-"""``--method trackingworld``: dense 2D tracks -> stages 1-3 -> world-centric 3D tracks, poses, video depth."""
+"""``--method trackingworld``: dense 2D tracks -> stages 1-3 -> world-centric 3D tracks, poses, video depth.
+
+:func:`optimise` runs the steps in order and times each: labels from the masks, stage 1, stage 2 (here), the
+prior's correction fields (``pipeline.fields``), the static side (``pipeline.static_side``), stage 3 on the dynamic
+tracks (``pipeline.dynamic``) and the video depth."""
 
 from __future__ import annotations
 
@@ -22,29 +26,22 @@ from trackingworld.config import (
     RunConfig,
 )
 from trackingworld.errors import InputError
-from trackingworld.geometry import focal_length, transform, unproject
+from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2
 from trackingworld.optim.densify import (
     cell_cap_mask,
     cell_representatives,
-    propagate_ratio,
     ratio_maps,
 )
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.optim.static_tests import (
-    fit_static_points,
-    fits_static_chunked,
     moving_tracks,
-    rescue_slipped,
-    static_outliers,
-    vote_short,
 )
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.dynamic import place_dynamic
 from trackingworld.pipeline.fields import (
-    camera_depths,
     corrected_prior,
     depth_mover_test,
     edge_free_prior,
@@ -53,6 +50,13 @@ from trackingworld.pipeline.fields import (
 )
 from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
+from trackingworld.pipeline.static_side import (
+    StaticFits,
+    drop_off_point,
+    rebuild_static,
+    test_masked,
+    vote_short_tracks,
+)
 from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult
@@ -73,7 +77,6 @@ def timed(timings: dict, name: str, verbose: bool):
 
 REFIT_ITERS = 3  # Gauss-Newton steps of the static refit (held to the corrected prior: the same metrics as 6 to
 # within 0.1 on seeds 0-3 and hard 0, half the time)
-VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
 FOCAL_ROUNDS = 3  # most rounds of (stage-2 bundle adjustment, focal refinement)
 FOCAL_TOL = 0.002  # stop when the focal length changes by less than this (relative)
 FOCAL_CONTRACTION = 0.6  # ... or when a round's change is not at most this fraction of the previous one's
@@ -207,153 +210,33 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     thinned = None  # the static tracks' thinned observations (reference_ratios), made by the depth-mover test
     dynamic = labels == DYNAMIC
     dynamic[s2[moving_s2]] = True
+    fits = StaticFits(uv, Dfit, K, R, t, cfg, device)  # the static fits from here on: poses held
     with tm("classify"):
-        # tracks the masks call dynamic or ambiguous get the same as-static-as-possible test with the poses
-        # fixed: the coarse masks are dilated, and a track that fits one static point is static
-        cand = np.flatnonzero((labels != STATIC) & (vis.sum(1) >= 2))
-        if p.offsets and len(cand):
-            # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
-            # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
-            # decision for all 72,464 tracks, points within 0.11 mm of float64's)
-            still, Xc, worst = fits_static_chunked(cand, uv, Dfit, vis, K, R, t, cfg, device)
-            if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
-                still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
-            # (not in the paper) a failed track that holds a static point around its query frame and then
-            # slips off it is that static point, seen in the run only (optim.slip)
-            px = np.full(len(cand), cfg.slip_px)
-            if cfg.mask_dynamic_px > 0:
-                px[labels[cand] == DYNAMIC] = min(cfg.slip_px, cfg.mask_dynamic_px)
-            vis, slipped = rescue_slipped(cand, still, Xc, px, uv, Dfit, vis, qf, K, R, t, cfg, device)
-            fixed = cand[still]
-            dynamic[fixed] = False
-            dynamic[cand[~still]] = True
-            xyz[fixed] = Xc[still][:, None]
-            info["classify"] = {"tested": int(len(cand)), "static": int(still.sum()), "slipped": slipped}
-    own = cfg.own_test  # (not in the paper) the static tracks' own observations have a say
+        vis = test_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets)
     with tm("rebuild_static"):
-        # every other static / ambiguous track: its own ray at the query frame, depth from the propagated
-        # scale of the optimised static points visible there (the appendix's speed-up, rebuilt by IDW)
-        single = vis.sum(1) < 2
-        rest = np.setdiff1d(np.flatnonzero(labels == STATIC), s2)
-        rest = np.union1d(rest, np.flatnonzero((labels != STATIC) & single) if own else
-                          np.flatnonzero((labels == AMBIGUOUS) & single))
-        ref_ratio = camera_depths(xyz[ok_s2], poses) / np.maximum(D[ok_s2], 1e-6)
-        moving_flag = moving_s2.astype(np.float64)
-        multi_rest = rest[~single[rest]]
-        once = rest[single[rest]] if own else rest[:0]  # voted on after the depth-mover test (below)
-        fit = multi_rest if cfg.static_rebuild == "fit" else rest[:0]
-        placed = np.ones(N, bool)  # the tracks that get their position here (the others are fitted below)
-        placed[fit] = False
-        voted = np.zeros(N, bool)  # moving by the vote of the optimised neighbours (the appendix)
-        vis_s2 = np.ascontiguousarray(vis[s2].T)
-        for q in np.unique(qf[rest]):
-            who_all = rest[qf[rest] == q]
-            who = who_all[placed[who_all]]
-            v = np.flatnonzero(vis_s2[q])
-            refs = s2[v]
-            if len(refs):
-                mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who_all, q], D[who_all, q], K,
-                                     cfg.idw_k)
-                voted[who_all[mv >= 0.5]] = True
-            if not len(who):
-                continue
-            r_ok = ~moving_s2[v]
-            if r_ok.sum() == 0:
-                ratio = np.full(len(who), np.nanmedian(ref_ratio) if ref_ratio.size else 1.0)
-            else:
-                vv = v[r_ok]
-                ratio = propagate_ratio(uv[s2[vv], q], D[s2[vv], q], ref_ratio[np.searchsorted(ok_s2, s2[vv]), q],
-                                        uv[who, q], D[who, q], K, cfg.idw_k)
-            pts = unproject(uv[who, q], ratio * D[who, q], K)
-            xyz[who] = transform(poses[q], pts)[:, None]
-        if not own:
-            dynamic[voted] = True
-        else:
-            # a static track the vote calls moving is moving only if its own as-static test fails too: a
-            # neighbour that slipped onto a mover does not take its neighbours with it
-            suspects = multi_rest[voted[multi_rest]]
-            if p.offsets and len(suspects):
-                still, Xv, _ = fits_static_chunked(suspects, uv, Dfit, vis, K, R, t, cfg, device)
-                # ... and one that fails it holds its point and then slips, like the masks' tracks above
-                # (not in the paper; 2 px, slip_px; the fits below then see its run only)
-                vis, slipped = rescue_slipped(suspects, still, Xv, np.full(len(suspects), cfg.slip_px), uv, Dfit,
-                                              vis, qf, K, R, t, cfg, device)
-                dynamic[suspects[~still]] = True
-                info["vote_tested"] = {"tested": int(len(suspects)), "static": int(still.sum()),
-                                       "slipped": slipped}
-            else:
-                dynamic[suspects] = True
-        if len(fit):  # triangulated with the poses held
-            fit_static_points(fit, uv, Dfit, vis, xyz, K, R, t, cfg, device)
-            info["static_fitted"] = int(len(fit))
-        info["dynamic"] = int(dynamic.sum())
-
+        vis, once = rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits, dynamic, xyz, info, p.offsets)
     if cfg.depth_mover_log > 0:
         with tm("depth_movers"):
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
-                                            prior.shape[1:], cfg)
+                                               prior.shape[1:], cfg)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
-
-    if own:
+    if cfg.own_test:
         with tm("rebuild_static"):
-            # a track seen once cannot be tested, and one seen in a few frames cannot fail the test: each takes the
-            # verdict of the tracks seen in more frames nearest it (one per query frame and VOTE_CELL_PX square,
-            # prior-lifted 3D distance and colour), the depth-mover test's included
-            seen = vis.sum(1)
-            voters = np.flatnonzero(seen > cfg.vote_short)
-            voters = voters[cell_representatives(tr.queries[voters], VOTE_CELL_PX)]
-            short = np.union1d(once, np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short)))
-            if len(short):
-                colour = colours is not None and cfg.vote_colour_sigma > 0
-                k = cfg.vote_k if colour else cfg.idw_k
-                was = dynamic[short]
-                dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours,
-                                            cfg.vote_colour_sigma)
-                # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
-                # tracks seen once take the vote of those seen in two or more, as with vote_short 1
-                bare = once[~vis[voters].any(0)[qf[once]]] if len(voters) else once
-                if len(bare):
-                    multi = np.flatnonzero(seen >= 2)
-                    multi = multi[cell_representatives(tr.queries[multi], VOTE_CELL_PX)]
-                    dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours,
-                                               cfg.vote_colour_sigma)
-                # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
-                tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's above
-                flip = short[dynamic[short] & ~was & tested]
-                if len(flip) and cfg.vote_flip_px > 0:
-                    worst = fits_static_chunked(flip, uv, Dfit, vis, K, R, t, cfg, device)[2]
-                    dynamic[flip[worst <= cfg.vote_flip_px]] = False
-                # tracks the vote made static get their static point now: the off-point observations are judged
-                # against it next
-                now_static = short[~dynamic[short] & was & tested]
-                if len(now_static):
-                    fit_static_points(now_static, uv, Dfit, vis, xyz, K, R, t, cfg, device)
-                info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
-            info["dynamic"] = int(dynamic.sum())
-
+            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info)
     if cfg.static_outliers and p.offsets:
         with tm("static_outliers"):
-            # (not in the paper) a static track's observations off its point by epsilon or more are not of its
-            # point (its 2D track slipped onto an occluder, or was found again off the point after a gap): they
-            # are left out of the refit and of the video depth, and returned as not visible (query frames kept)
-            still = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            off = static_outliers(still, uv, Dfit, vis, xyz, K, R, t, cfg, device)
-            off[np.arange(len(still)), qf[still]] = False
-            vis = vis.copy()
-            vis[still] &= ~off
-            info["static_outliers"] = int(off.sum())
+            vis = drop_off_point(vis, qf, fits, dynamic, xyz, info)
     if cfg.static_refit_dc > 0 and not cfg.no_depth_consistency:
         with tm("static_refit"):
             # every static point again, poses held, its depth now held to the field-corrected prior: a track
             # seen over a short baseline is placed by the prior, which the field has corrected, more than by
             # its small parallax (after the depth-mover test, which needs the fits that follow the parallax)
             refit = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            fit_static_points(refit, uv, Dfit, vis, xyz, K, R, t, replace(cfg, lambda_dc=cfg.static_refit_dc),
-                               device, REFIT_ITERS)
+            fits.refit(refit, vis, xyz, cfg.static_refit_dc, REFIT_ITERS)
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
     with tm("stage3"):

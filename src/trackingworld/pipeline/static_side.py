@@ -1,0 +1,205 @@
+"""Which tracks are static, and where their points are, once stage 2 has fixed the poses (paper Sec. 3.3 and
+appendix, with this package's own tests): the mask-dynamic and ambiguous tracks tested as static, the static
+tracks outside stage 2 rebuilt from its points or fitted, the short tracks voted on by the tested ones, and the
+static observations off their point left out. Each step updates the run's labels ``dynamic [N]`` and world
+positions ``xyz [N,T,3]`` in place and returns the visibility ``[N,T]`` it leaves (a slipped track keeps its run).
+Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, poses camera-to-world ``[T,4,4]``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import transform, unproject
+from trackingworld.optim.densify import cell_representatives, propagate_ratio
+from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC
+from trackingworld.optim.static_tests import (
+    fit_static_points,
+    fits_static_chunked,
+    rescue_slipped,
+    static_outliers,
+    vote_short,
+)
+from trackingworld.pipeline.fields import camera_depths
+
+VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
+
+
+@dataclass
+class StaticFits:
+    """What every static fit after stage 2 reads: the tracks ``uv [N,T,2]`` px, their depth target ``D [N,T]``
+    metres (the prior, field-corrected with ``prior_field``), K, the poses held (``R [T,3,3]``, ``t [T,3]``
+    world-to-camera tensors), the config and the device."""
+
+    uv: np.ndarray
+    D: np.ndarray
+    K: np.ndarray
+    R: torch.Tensor
+    t: torch.Tensor
+    cfg: OptimConfig
+    device: str
+
+    def test(self, tracks, vis):
+        """:func:`~trackingworld.optim.static_tests.fits_static_chunked`: (still [n], X [n,3], worst px [n])."""
+        return fits_static_chunked(tracks, self.uv, self.D, vis, self.K, self.R, self.t, self.cfg, self.device)
+
+    def rescue(self, tracks, still, X, px, vis, qf):
+        """:func:`~trackingworld.optim.static_tests.rescue_slipped`: (visibility, tracks rescued)."""
+        return rescue_slipped(tracks, still, X, px, self.uv, self.D, vis, qf, self.K, self.R, self.t, self.cfg,
+                              self.device)
+
+    def fit(self, tracks, vis, xyz, cfg: OptimConfig | None = None, iters: int = 6) -> None:
+        """``xyz[tracks]`` <- their static points (``cfg``: other weights than the run's)."""
+        fit_static_points(tracks, self.uv, self.D, vis, xyz, self.K, self.R, self.t, cfg or self.cfg, self.device,
+                          iters)
+
+    def refit(self, tracks, vis, xyz, lambda_dc: float, iters: int) -> None:
+        """:meth:`fit` with the depth term weighed ``lambda_dc``."""
+        self.fit(tracks, vis, xyz, replace(self.cfg, lambda_dc=lambda_dc), iters)
+
+
+def test_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict, offsets: bool = True) -> np.ndarray:
+    """The tracks the masks call dynamic or ambiguous (``labels [N]``, seen twice or more) get the as-static test
+    with the poses held: the coarse masks are dilated, and a track that fits one static point is static (inside
+    the sure-dynamic region only when the fit also holds within ``mask_dynamic_px``); one that fails and slips off
+    a point it held is that point over its run (``optim.slip``). ``offsets`` False (w/o O_static): no test."""
+    cfg = fits.cfg
+    cand = np.flatnonzero((labels != STATIC) & (vis.sum(1) >= 2))
+    if not (offsets and len(cand)):
+        return vis
+    # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
+    # memory traffic of the largest step at 120 frames (2.3M observations: 6.5 -> 3.6 s, the same
+    # decision for all 72,464 tracks, points within 0.11 mm of float64's)
+    still, Xc, worst = fits.test(cand, vis)
+    if cfg.mask_dynamic_px > 0:  # inside the sure-dynamic region the fit must hold in pixels too
+        still &= (labels[cand] != DYNAMIC) | (worst <= cfg.mask_dynamic_px)
+    # (not in the paper) a failed track that holds a static point around its query frame and then
+    # slips off it is that static point, seen in the run only (optim.slip)
+    px = np.full(len(cand), cfg.slip_px)
+    if cfg.mask_dynamic_px > 0:
+        px[labels[cand] == DYNAMIC] = min(cfg.slip_px, cfg.mask_dynamic_px)
+    vis, slipped = fits.rescue(cand, still, Xc, px, vis, qf)
+    fixed = cand[still]
+    dynamic[fixed] = False
+    dynamic[cand[~still]] = True
+    xyz[fixed] = Xc[still][:, None]
+    info["classify"] = {"tested": int(len(cand)), "static": int(still.sum()), "slipped": slipped}
+    return vis
+
+
+def rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits: StaticFits, dynamic, xyz, info: dict,
+                   offsets: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Every static track outside stage 2's subset ``s2`` (``ok_s2`` its static part, ``moving_s2 [len(s2)]`` its
+    movers) and, with ``own_test``, every track seen once: its own ray at the query frame, depth from the
+    propagated scale of the optimised static points visible there (the appendix's speed-up), or (``static_rebuild
+    fit``) triangulated with the poses held. Those the optimised neighbours' vote calls moving are moving (the
+    appendix), or with ``own_test`` only if their own as-static test fails too and they hold no run (a neighbour
+    that slipped onto a mover does not take its neighbours with it). Returns (visibility, the tracks seen once,
+    left to :func:`vote_short_tracks`)."""
+    cfg, K, uv = fits.cfg, fits.K, fits.uv
+    own = cfg.own_test  # (not in the paper) the static tracks' own observations have a say
+    single = vis.sum(1) < 2
+    rest = np.setdiff1d(np.flatnonzero(labels == STATIC), s2)
+    rest = np.union1d(rest, np.flatnonzero((labels != STATIC) & single) if own else
+                      np.flatnonzero((labels == AMBIGUOUS) & single))
+    ref_ratio = camera_depths(xyz[ok_s2], poses) / np.maximum(D[ok_s2], 1e-6)
+    moving_flag = moving_s2.astype(np.float64)
+    multi_rest = rest[~single[rest]]
+    once = rest[single[rest]] if own else rest[:0]  # voted on after the depth-mover test (vote_short_tracks)
+    fit = multi_rest if cfg.static_rebuild == "fit" else rest[:0]
+    placed = np.ones(len(vis), bool)  # the tracks that get their position here (the others are fitted below)
+    placed[fit] = False
+    voted = np.zeros(len(vis), bool)  # moving by the vote of the optimised neighbours (the appendix)
+    vis_s2 = np.ascontiguousarray(vis[s2].T)
+    for q in np.unique(qf[rest]):
+        who_all = rest[qf[rest] == q]
+        who = who_all[placed[who_all]]
+        v = np.flatnonzero(vis_s2[q])
+        refs = s2[v]
+        if len(refs):
+            mv = propagate_ratio(uv[refs, q], D[refs, q], moving_flag[v], uv[who_all, q], D[who_all, q], K, cfg.idw_k)
+            voted[who_all[mv >= 0.5]] = True
+        if not len(who):
+            continue
+        r_ok = ~moving_s2[v]
+        if r_ok.sum() == 0:
+            ratio = np.full(len(who), np.nanmedian(ref_ratio) if ref_ratio.size else 1.0)
+        else:
+            vv = v[r_ok]
+            ratio = propagate_ratio(uv[s2[vv], q], D[s2[vv], q], ref_ratio[np.searchsorted(ok_s2, s2[vv]), q],
+                                    uv[who, q], D[who, q], K, cfg.idw_k)
+        pts = unproject(uv[who, q], ratio * D[who, q], K)
+        xyz[who] = transform(poses[q], pts)[:, None]
+    if not own:
+        dynamic[voted] = True
+    else:
+        suspects = multi_rest[voted[multi_rest]]
+        if offsets and len(suspects):
+            still, Xv, _ = fits.test(suspects, vis)
+            # ... and one that fails it holds its point and then slips, like the masks' tracks
+            # (not in the paper; 2 px, slip_px; the fits below then see its run only)
+            vis, slipped = fits.rescue(suspects, still, Xv, np.full(len(suspects), cfg.slip_px), vis, qf)
+            dynamic[suspects[~still]] = True
+            info["vote_tested"] = {"tested": int(len(suspects)), "static": int(still.sum()), "slipped": slipped}
+        else:
+            dynamic[suspects] = True
+    if len(fit):  # triangulated with the poses held
+        fits.fit(fit, vis, xyz)
+        info["static_fitted"] = int(len(fit))
+    info["dynamic"] = int(dynamic.sum())
+    return vis, once
+
+
+def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, colours, info: dict) -> None:
+    """(not in the paper) A track seen once cannot be tested, and one seen in ``vote_short`` frames or fewer
+    cannot fail the test: each takes the verdict of the tracks seen in more frames nearest it (one per query frame
+    and VOTE_CELL_PX square, prior-lifted 3D distance and ``colours [N,3]`` at the query pixels), the depth-mover
+    test's included, and becomes dynamic only where its own static fit misses a pixel by more than
+    ``vote_flip_px``. ``once``: the tracks seen once that :func:`rebuild_static` placed; ``queries [N,3]``."""
+    cfg, K, uv = fits.cfg, fits.K, fits.uv
+    qf = queries[:, 0].astype(np.int64)
+    seen = vis.sum(1)
+    voters = np.flatnonzero(seen > cfg.vote_short)
+    voters = voters[cell_representatives(queries[voters], VOTE_CELL_PX)]
+    short = np.union1d(once, np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short)))
+    if len(short):
+        colour = colours is not None and cfg.vote_colour_sigma > 0
+        k = cfg.vote_k if colour else cfg.idw_k
+        was = dynamic[short]
+        dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
+        # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
+        # tracks seen once take the vote of those seen in two or more, as with vote_short 1
+        bare = once[~vis[voters].any(0)[qf[once]]] if len(voters) else once
+        if len(bare):
+            multi = np.flatnonzero(seen >= 2)
+            multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
+            dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
+        # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
+        tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's
+        flip = short[dynamic[short] & ~was & tested]
+        if len(flip) and cfg.vote_flip_px > 0:
+            worst = fits.test(flip, vis)[2]
+            dynamic[flip[worst <= cfg.vote_flip_px]] = False
+        # tracks the vote made static get their static point now: the off-point observations are judged
+        # against it next
+        now_static = short[~dynamic[short] & was & tested]
+        if len(now_static):
+            fits.fit(now_static, vis, xyz)
+        info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
+    info["dynamic"] = int(dynamic.sum())
+
+
+def drop_off_point(vis, qf, fits: StaticFits, dynamic, xyz, info: dict) -> np.ndarray:
+    """(not in the paper) A static track's observations off its point by epsilon or more are not of its point
+    (its 2D track slipped onto an occluder, or was found again off the point after a gap): returned as not
+    visible, so that the refit and the video depth leave them out (query frames kept). A new visibility."""
+    still = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+    off = static_outliers(still, fits.uv, fits.D, vis, xyz, fits.K, fits.R, fits.t, fits.cfg, fits.device)
+    off[np.arange(len(still)), qf[still]] = False
+    vis = vis.copy()
+    vis[still] &= ~off
+    info["static_outliers"] = int(off.sum())
+    return vis
