@@ -52,6 +52,7 @@ ROWS = {
     "stage 2 solved once, every observation (paper)": ("trackingworld", {"stage2_reject": False}, ""),
     "stage-3 target field fitted frame by frame": ("trackingworld", {"dc_field_temporal": 0.0}, ""),
     "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, ""),
+    "hidden frames carried by the donors' weighted mean": ("trackingworld", {"carry_stat": "mean"}, ""),
     "stage-3 smoothness: first difference (paper)": ("trackingworld", {"ts_order": 1}, ""),
     "mask-dynamic test by offsets alone": ("trackingworld", {"mask_dynamic_px": 0.0}, ""),
     "no depth-discrepancy mover test (paper)": ("trackingworld", {"depth_mover_log": 0.0}, ""),

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from trackingworld.optim.hidden import carry_hidden
+from trackingworld.optim.hidden import carry_hidden, weighted_median
 from trackingworld.tracking2d.base import hold_invisible, nearest_visible_frame
 
 
@@ -97,8 +97,33 @@ def test_a_donor_on_another_object_beyond_reach_is_left_out():
     vis[0, 2] = False
     out = carry_hidden(xyz, vis, k=2, reach=0.3)
     assert np.allclose(out[0, 2], xyz[0, 1])
-    far = carry_hidden(xyz, vis, k=2, reach=2.0)  # within reach: its motion is mixed in
+    far = carry_hidden(xyz, vis, k=2, reach=2.0, stat="mean")  # within reach: its motion is mixed in
     assert far[0, 2, 1] > 0.01
+
+
+def test_the_median_step_ignores_a_minority_of_donors_on_another_object():
+    # track 0 is hidden at frame 2; five tracks of its own (still) object lie 4-8 cm from it, two of another
+    # object passing 3-4 cm away in frame 1 (within reach, nearer than most) move 0.25 m by frame 2: the weighted
+    # mean takes part of that motion, the median none
+    rng = np.random.default_rng(3)
+    T = 3
+    own = np.array([0.0, 0.0, 4.0]) + np.c_[rng.uniform(0.04, 0.08, 5) * np.array([1, -1, 1, -1, 1]),
+                                            rng.uniform(-0.01, 0.01, 5), np.zeros(5)]
+    other = np.array([[0.0, 0.03, 4.0], [0.0, -0.04, 4.0]])
+    xyz = np.concatenate([np.array([[0.0, 0.0, 4.0]]), own, other])[:, None].repeat(T, 1)
+    xyz[6:, :, 1] += 0.25 * (np.arange(T) - 1)  # the other object moves 0.25 m a frame, passing at frame 1
+    vis = np.ones((len(xyz), T), bool)
+    vis[0, 2] = False
+    mean = carry_hidden(xyz, vis, k=8, reach=0.3, stat="mean")
+    median = carry_hidden(xyz, vis, k=8, reach=0.3)  # the default
+    assert mean[0, 2, 1] > 0.05
+    assert abs(median[0, 2, 1]) < 1e-6
+
+
+def test_weighted_median_is_the_median_under_weights():
+    v = np.array([[[0.0], [1.0], [10.0]], [[5.0], [1.0], [2.0]]])
+    assert weighted_median(v, np.ones((2, 3)))[:, 0].tolist() == [1.0, 2.0]
+    assert weighted_median(v, np.array([[1.0, 1.0, 5.0], [3.0, 1.0, 1.0]]))[:, 0].tolist() == [10.0, 5.0]
 
 
 def test_gaps_between_searched_ones_take_interpolated_steps():

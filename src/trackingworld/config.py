@@ -9,6 +9,7 @@ UPSAMPLERS = ("convex", "convex-mean", "bilinear")  # Track2DConfig.upsampler
 STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
 TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
 REFINE_FOCAL = ("auto", "on", "off")  # OptimConfig.refine_focal
+CARRY_STATS = ("median", "mean")  # OptimConfig.carry_stat (optim.hidden)
 STAGE3_LINEAR = ("cg", "amg")  # OptimConfig.stage3_linear (optim.stage3.solve_cg / solve_amg)
 
 
@@ -149,6 +150,9 @@ class OptimConfig:
     # tracks at the dynamic tracks' median depth drift apart in this many frames (0: by 3D position alone). Not in
     # the authors' code: objects passing each other lend their motion to each other's hidden tracks otherwise
     carry_motion_frames: float = 8.0
+    # ... and their steps combined by their weighted median per coordinate (not in the authors' code, which holds;
+    # optim.hidden: a donor on another object does not drag the step along) | mean (the weighted mean, before)
+    carry_stat: str = "median"
     # a track inside the sure-dynamic mask region is called static only when its static fit also holds in
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.

@@ -222,7 +222,15 @@ ABLATIONS = {
 
 
 def _optim_args(p: argparse.ArgumentParser) -> None:
-    from trackingworld.config import DC_TARGETS, REFINE_FOCAL, STAGE3_LINEAR, STATIC_REBUILDS, TS_ORDERS, OptimConfig
+    from trackingworld.config import (
+        CARRY_STATS,
+        DC_TARGETS,
+        REFINE_FOCAL,
+        STAGE3_LINEAR,
+        STATIC_REBUILDS,
+        TS_ORDERS,
+        OptimConfig,
+    )
 
     d = OptimConfig()
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
@@ -274,6 +282,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--carry-motion", type=float, default=d.carry_motion_frames, metavar="FRAMES",
                    help="with --carry-k: nearness also in 2D velocity, 1 px/frame of difference counting as the "
                         "drift of this many frames at the dynamic tracks' median depth (0: 3D distance alone)")
+    g.add_argument("--carry-stat", choices=CARRY_STATS, default=d.carry_stat,
+                   help="with --carry-k: the donors' steps combined by their weighted median per coordinate (a donor "
+                        "on another object does not drag the step along) or weighted mean")
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
@@ -339,6 +350,7 @@ def _optim_config(a):
         dc_target=a.dc_target,
         dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
         carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
+        carry_stat=a.carry_stat,
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,

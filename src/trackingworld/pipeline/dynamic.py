@@ -52,7 +52,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
         few = dyn[:: max(1, len(dyn) // 4000)]
         z = D3[few][vis[few]]
         scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
-        xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale)
+        xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale,
+                                stat=cfg.carry_stat)
     else:
         xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
     info["stage3_controls"] = int(len(ctrl))

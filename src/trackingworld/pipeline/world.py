@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from trackingworld.config import (
+    CARRY_STATS,
     DC_TARGETS,
     REFINE_FOCAL,
     STAGE3_LINEAR,
@@ -259,7 +260,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
     for name, allowed in (("refine_focal", REFINE_FOCAL), ("static_rebuild", STATIC_REBUILDS),
-                          ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS), ("stage3_linear", STAGE3_LINEAR)):
+                          ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS), ("stage3_linear", STAGE3_LINEAR),
+                          ("carry_stat", CARRY_STATS)):
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
     if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
