@@ -11,6 +11,9 @@ TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
 REFINE_FOCAL = ("auto", "on", "off")  # OptimConfig.refine_focal
 CARRY_STATS = ("median", "mean")  # OptimConfig.carry_stat (optim.hidden)
 STAGE3_LINEAR = ("cg", "amg")  # OptimConfig.stage3_linear (optim.stage3.solve_cg / solve_amg)
+# the OptimConfig fields that take one of a few values, and those values (checked before a run)
+OPTIM_CHOICES = {"refine_focal": REFINE_FOCAL, "static_rebuild": STATIC_REBUILDS, "dc_target": DC_TARGETS,
+                 "ts_order": TS_ORDERS, "stage3_linear": STAGE3_LINEAR, "carry_stat": CARRY_STATS}
 
 
 def offset_percentile(stat: str) -> int | None:

@@ -16,30 +16,15 @@ import cv2
 import numpy as np
 import torch
 
-from trackingworld.config import (
-    CARRY_STATS,
-    DC_TARGETS,
-    REFINE_FOCAL,
-    STAGE3_LINEAR,
-    STATIC_REBUILDS,
-    TS_ORDERS,
-    OptimConfig,
-    RunConfig,
-)
+from trackingworld.config import OPTIM_CHOICES, OptimConfig, RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2
-from trackingworld.optim.densify import (
-    cell_cap_mask,
-    cell_representatives,
-    ratio_maps,
-)
+from trackingworld.optim.densify import cell_cap_mask, cell_representatives, ratio_maps
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
-from trackingworld.optim.static_tests import (
-    moving_tracks,
-)
+from trackingworld.optim.static_tests import moving_tracks
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.dynamic import place_dynamic
 from trackingworld.pipeline.fields import (
@@ -259,9 +244,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     timings = {} if timings is None else timings
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
-    for name, allowed in (("refine_focal", REFINE_FOCAL), ("static_rebuild", STATIC_REBUILDS),
-                          ("dc_target", DC_TARGETS), ("ts_order", TS_ORDERS), ("stage3_linear", STAGE3_LINEAR),
-                          ("carry_stat", CARRY_STATS)):
+    for name, allowed in OPTIM_CHOICES.items():
         if getattr(cfg.optim, name) not in allowed:
             raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
     if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
