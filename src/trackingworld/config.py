@@ -188,7 +188,8 @@ class OptimConfig:
     # appendix's rebuild on its query-frame ray at the IDW-propagated depth (the paper; tracks seen once always)
     static_rebuild: str = "fit"
     # ... from at most about this many of its visible frames, spread over its span (0: all); seed 0: 10 frames
-    # gave world static accuracy 66.5 against 67.2 with all, in 1.3 s instead of 3.4
+    # gave world static accuracy 66.5 against 67.2 with all, in 1.3 s instead of 3.4; ten scenes (stop 40, docs/
+    # results.md): world 81.9 / 82.1 / 82.1 with 10 / 20 / all, optimisation 7.4 / 8.0 / 9.0 s on the mean
     static_fit_frames: int = 10
     # the static tracks' depth target outside stage 2: the prior times the field (optim.ratio_field) of the
     # optimised static points' ratio z / prior in each frame (the prior's per-frame scale and smooth warp), as

@@ -330,6 +330,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--static-rebuild", default=d.static_rebuild, choices=STATIC_REBUILDS,
                    help="static tracks not optimised: triangulated with the poses held (fit) or rebuilt on "
                         "their query ray at the IDW-propagated depth (idw, the paper's appendix)")
+    g.add_argument("--static-fit-frames", type=int, default=d.static_fit_frames, metavar="N",
+                   help="each static fit outside stage 2 reads at most about N of the track's visible frames, spread "
+                        "over its span (0: all)")
     g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,
                    help="optimise one static track per cell of this many px (0: all)")
     g.add_argument("--cell-cap", type=int, default=d.cell_cap,
@@ -352,7 +355,7 @@ def _optim_config(a):
         carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
         carry_stat=a.carry_stat,
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
-        static_rebuild=a.static_rebuild,
+        static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
         vote_flip_px=a.vote_flip_px,
