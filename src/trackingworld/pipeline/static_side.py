@@ -61,7 +61,7 @@ class StaticFits:
         self.fit(tracks, vis, xyz, replace(self.cfg, lambda_dc=lambda_dc), iters)
 
 
-def test_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict, offsets: bool = True) -> np.ndarray:
+def classify_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict, offsets: bool = True) -> np.ndarray:
     """The tracks the masks call dynamic or ambiguous (``labels [N]``, seen twice or more) get the as-static test
     with the poses held: the coarse masks are dilated, and a track that fits one static point is static (inside
     the sure-dynamic region only when the fit also holds within ``mask_dynamic_px``); one that fails and slips off

@@ -38,9 +38,9 @@ from trackingworld.pipeline.inputs import Inputs, resize_stack
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.pipeline.static_side import (
     StaticFits,
+    classify_masked,
     drop_off_point,
     rebuild_static,
-    test_masked,
     vote_short_tracks,
 )
 from trackingworld.priors.sources import depth_source, intrinsics_given
@@ -198,7 +198,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     dynamic[s2[moving_s2]] = True
     fits = StaticFits(uv, Dfit, K, R, t, cfg, device)  # the static fits from here on: poses held
     with tm("classify"):
-        vis = test_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets)
+        vis = classify_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets)
     with tm("rebuild_static"):
         vis, once = rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits, dynamic, xyz, info, p.offsets)
     if cfg.depth_mover_log > 0:
