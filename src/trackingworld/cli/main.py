@@ -266,6 +266,11 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="stage-3 depth target: the raw prior (the paper), the prior times each frame's static "
                         "z / prior median, that ratio propagated from the nearest static tracks, or a robust "
                         "smooth field of it over the image (default)")
+    g.add_argument("--dc-target-smooth", type=float, default=d.dc_target_smooth, metavar="W",
+                   help="with --dc-target field: the weight of the field's smoothness (larger: stiffer)")
+    g.add_argument("--dc-field-smooth", type=float, default=d.dc_field_smooth, metavar="W",
+                   help="the static side's correction fields of the prior (the static tracks' corrected prior, the "
+                        "depth-mover test): the weight of their smoothness")
     g.add_argument("--dc-field-temporal", type=float, default=d.dc_field_temporal, metavar="W",
                    help="with --dc-target field: hold each frame's field near its neighbours' in time with this "
                         "weight (0: each frame on its own, as before)")
@@ -350,7 +355,7 @@ def _optim_config(a):
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc, ba_dc_weight=a.ba_dc_weight,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,
-        dc_target=a.dc_target,
+        dc_target=a.dc_target, dc_target_smooth=a.dc_target_smooth, dc_field_smooth=a.dc_field_smooth,
         dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
         carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
         carry_stat=a.carry_stat,

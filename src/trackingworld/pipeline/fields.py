@@ -89,7 +89,7 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
     if mode == "field" and shape is None:
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
     if field is None:
-        field = (OptimConfig.dc_field_cells, OptimConfig.dc_field_smooth, OptimConfig.dc_field_margin_px,
+        field = (OptimConfig.dc_field_cells, OptimConfig.dc_target_smooth, OptimConfig.dc_field_margin_px,
                  OptimConfig.dc_field_temporal)
     cells, smooth, margin, temporal = field
     vis_t = np.ascontiguousarray(vis[dyn].T)
