@@ -51,6 +51,7 @@ ROWS = {
     "prior as sampled at the depth edges (paper)": ("trackingworld", {"dc_edge_sigma_px": 0.0}, ""),
     "stage 2 solved once, every observation (paper)": ("trackingworld", {"stage2_reject": False}, ""),
     "stage-3 target field fitted frame by frame": ("trackingworld", {"dc_field_temporal": 0.0}, ""),
+    "stage-3 target field as stiff as the static side's (before)": ("trackingworld", {"dc_target_smooth": 0.01}, ""),
     "hidden dynamic frames held": ("trackingworld", {"carry_k": 0}, ""),
     "hidden frames carried by the donors' weighted mean": ("trackingworld", {"carry_stat": "mean"}, ""),
     "stage-3 smoothness: first difference (paper)": ("trackingworld", {"ts_order": 1}, ""),
