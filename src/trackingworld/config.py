@@ -147,8 +147,10 @@ class OptimConfig:
     dc_edge_sigma_px: float = 1.5
     # ... and the weight that holds each frame's field shape near the previous frame's (ratio_field.fit_log_fields;
     # 0: every frame on its own). Not in the paper: the prior's warp drifts slowly, and under a moving object
-    # a frame's own static tracks cannot see it while its neighbours in time can (stage 3's target only)
-    dc_field_temporal: float = 3.0
+    # a frame's own static tracks cannot see it while its neighbours in time can (stage 3's target only). 1 since
+    # stop 41 (3 before): with the less stiff field the weaker coupling follows the warp's drift better (fifteen
+    # scenes: the three `hard` ones +0.1 / +1.7 / +2.8, the `default` ones -0.4 to +1.2; README)
+    dc_field_temporal: float = 1.0
     # hidden frames of dynamic tracks: carried by the motion of this many nearest tracks visible both there and in
     # the track's nearest visible frame (optim.hidden; 0: the position at the nearest visible frame is held, as
     # the authors' code does)
