@@ -576,6 +576,26 @@ def test_stage3_target_field_follows_a_warp_that_peaks_under_the_object():
     assert err[d.dc_target_smooth] < 0.007 and err[d.dc_target_smooth] < 0.5 * err[0.01]
 
 
+def test_stage3_reads_its_own_field_stiffness_and_the_static_side_its_own(tiny_scene, tmp_path):
+    """``--dc-target-smooth`` moves the dynamic tracks and leaves the static ones and the labels; ``--dc-field-smooth``
+    changes the static side (its corrected prior)."""
+    from trackingworld.io.result import load_result
+
+    inp = tiny_scene / "input"
+
+    def run(name, *flags):
+        assert main(["run", str(inp / "frames"), "--out", str(tmp_path / name), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", *flags]) == 0
+        return load_result(tmp_path / name)
+
+    base, stiff, side = run("base"), run("stiff", "--dc-target-smooth", "10"), run("side", "--dc-field-smooth", "10")
+    dyn = base.is_dynamic
+    assert dyn.any() and np.array_equal(dyn, stiff.is_dynamic)
+    assert np.array_equal(base.tracks_3d[~dyn], stiff.tracks_3d[~dyn])
+    assert np.abs(base.tracks_3d[dyn] - stiff.tracks_3d[dyn]).max() > 1e-3
+    assert np.abs(base.tracks_3d[~side.is_dynamic & ~dyn] - side.tracks_3d[~side.is_dynamic & ~dyn]).max() > 1e-3
+
+
 def test_paper_settings_of_the_departures_run_and_land_in_the_config(tiny_scene, tmp_path):
     inp = tiny_scene / "input"
     out = tmp_path / "paper"
