@@ -591,7 +591,8 @@ def test_stage3_reads_its_own_field_stiffness_and_the_static_side_its_own(tiny_s
     base, stiff, side = run("base"), run("stiff", "--dc-target-smooth", "10"), run("side", "--dc-field-smooth", "10")
     dyn = base.is_dynamic
     assert dyn.any() and np.array_equal(dyn, stiff.is_dynamic)
-    assert np.array_equal(base.tracks_3d[~dyn], stiff.tracks_3d[~dyn])
+    # the static side is the same up to float noise (threaded reductions are not bit-reproducible)
+    assert np.abs(base.tracks_3d[~dyn] - stiff.tracks_3d[~dyn]).max() < 1e-4
     assert np.abs(base.tracks_3d[dyn] - stiff.tracks_3d[dyn]).max() > 1e-3
     assert np.abs(base.tracks_3d[~side.is_dynamic & ~dyn] - side.tracks_3d[~side.is_dynamic & ~dyn]).max() > 1e-3
 
