@@ -87,10 +87,12 @@ def test_stage3_options_reach_the_config():
                                                    "--ts-order", "1", "--stage3-linear", "amg", "--slip-run", "0.5",
                                                    "--slip-px", "3", "--dc-edge-sigma", "0",
                                                    "--vote-colour-sigma", "0", "--vote-k", "5",
-                                                   "--dc-target-smooth", "0.02", "--dc-field-smooth", "0.03"]))
+                                                   "--dc-target-smooth", "0.02", "--dc-field-smooth", "0.03",
+                                                   "--dynamic-cell", "2"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
+    assert cfg.dynamic_cell == 2
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)

@@ -340,6 +340,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "over its span (0: all)")
     g.add_argument("--downsample-cell", type=int, default=d.downsample_cell,
                    help="optimise one static track per cell of this many px (0: all)")
+    g.add_argument("--dynamic-cell", type=int, default=d.dynamic_cell, metavar="PX",
+                   help="stage 3 solves one dynamic track per cell of this many px, the others follow it (0: all)")
     g.add_argument("--cell-cap", type=int, default=d.cell_cap,
                    help="optimise at most this many tracks' observations per frame and cell (0: all, the paper)")
     for name, text in ABLATIONS.items():
@@ -365,7 +367,7 @@ def _optim_config(a):
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
         vote_flip_px=a.vote_flip_px,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
-        downsample_cell=a.downsample_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
+        downsample_cell=a.downsample_cell, dynamic_cell=a.dynamic_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})
 
 
