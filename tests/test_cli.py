@@ -101,7 +101,7 @@ def test_stage3_options_reach_the_config():
         build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
 
 
-def test_unknown_optimiser_choice_is_refused_before_any_work():
+def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):
     from types import SimpleNamespace
 
     import numpy as np
@@ -109,6 +109,7 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
     from trackingworld.config import TS_ORDERS, OptimConfig, RunConfig
     from trackingworld.errors import InputError
     from trackingworld.optim import stage3
+    from trackingworld.pipeline.run import run
     from trackingworld.pipeline.world import run_trackingworld
 
     assert tuple(sorted(stage3.TS_COEFS)) == TS_ORDERS  # the CLI's choices are the solver's orders
@@ -124,6 +125,13 @@ def test_unknown_optimiser_choice_is_refused_before_any_work():
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     with pytest.raises(InputError, match="dc_edge_sigma_px -1.0: a Gaussian's width"):
         run_trackingworld(inp, None, RunConfig(optim=OptimConfig(dc_edge_sigma_px=-1.0)))
+    for bad in (dict(dc_target_smooth=-0.1), dict(dc_field_smooth=-1.0), dict(dc_field_temporal=-1.0),
+                dict(dynamic_cell=-2)):
+        with pytest.raises(InputError, match="the fields' weights and the cell are 0 or more"):
+            run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
+    with pytest.raises(InputError, match="dynamic_cell -2: the fields' weights"):  # before any work
+        run(RunConfig(optim=OptimConfig(dynamic_cell=-2)), tmp_path / "never")
+    assert not (tmp_path / "never").exists()
     for bad in (dict(vote_colour_sigma=-1.0), dict(vote_k=0)):
         with pytest.raises(InputError, match="the colour weight's width is 0 \\(off\\) or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))

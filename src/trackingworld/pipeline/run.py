@@ -16,7 +16,7 @@ from trackingworld.io.result import CONFIG_FILE, Result, save_result
 from trackingworld.pipeline.baseline import run_baseline
 from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import track_video
-from trackingworld.pipeline.world import run_trackingworld
+from trackingworld.pipeline.world import check_optim, run_trackingworld
 from trackingworld.priors.resolve import resolve_priors, tracks_key
 from trackingworld.tracking2d.base import TrackResult
 
@@ -51,6 +51,8 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
 
         if not torch.cuda.is_available():
             raise InputError("--device cuda: this torch build has no CUDA device (install a CUDA build of torch)")
+    if cfg.method == "trackingworld":
+        check_optim(cfg.optim)  # before the 2D tracks and the priors, which take minutes
     if cfg.track2d.tracker == "file" and cfg.inputs.resize:
         raise InputError(f"{cfg.track2d.tracks_file}: precomputed tracks are at the input resolution; drop --resize")
     timings: dict[str, float] = {}

@@ -237,6 +237,26 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             "visible": vis, "info": info}
 
 
+def check_optim(o: OptimConfig) -> None:
+    """InputError (one line, naming the field) for an optimiser setting out of its range: checked by
+    :func:`run_trackingworld` and, before any work, by ``pipeline.run.run``."""
+    for name, allowed in OPTIM_CHOICES.items():
+        if getattr(o, name) not in allowed:
+            raise InputError(f"{name}: {getattr(o, name)!r} is not {' or '.join(map(str, allowed))}")
+    if not 0 <= o.slip_run <= 1 or o.slip_px <= 0 or o.slip_window < 1:
+        raise InputError(f"slip_run {o.slip_run} / slip_px {o.slip_px} / slip_window "
+                         f"{o.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
+    if o.vote_colour_sigma < 0 or o.vote_k < 1:
+        raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k}: the colour "
+                         "weight's width is 0 (off) or more, the voters 1 or more")
+    if o.dc_edge_sigma_px < 0:
+        raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
+    if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
+        raise InputError(f"dc_target_smooth {o.dc_target_smooth} / dc_field_smooth {o.dc_field_smooth} / "
+                         f"dc_field_temporal {o.dc_field_temporal} / dynamic_cell {o.dynamic_cell}: the fields' "
+                         "weights and the cell are 0 or more")
+
+
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
                       report: dict | None = None) -> Result:
     """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`. ``report``
@@ -244,17 +264,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     timings = {} if timings is None else timings
     if inp.depth is None:
         raise InputError(f"{cfg.inputs.input}: no depth prior was resolved")
-    for name, allowed in OPTIM_CHOICES.items():
-        if getattr(cfg.optim, name) not in allowed:
-            raise InputError(f"{name}: {getattr(cfg.optim, name)!r} is not {' or '.join(map(str, allowed))}")
-    if not 0 <= cfg.optim.slip_run <= 1 or cfg.optim.slip_px <= 0 or cfg.optim.slip_window < 1:
-        raise InputError(f"slip_run {cfg.optim.slip_run} / slip_px {cfg.optim.slip_px} / slip_window "
-                         f"{cfg.optim.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
-    if cfg.optim.vote_colour_sigma < 0 or cfg.optim.vote_k < 1:
-        raise InputError(f"vote_colour_sigma {cfg.optim.vote_colour_sigma} / vote_k {cfg.optim.vote_k}: the colour "
-                         "weight's width is 0 (off) or more, the voters 1 or more")
-    if cfg.optim.dc_edge_sigma_px < 0:
-        raise InputError(f"dc_edge_sigma_px {cfg.optim.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
+    check_optim(cfg.optim)
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg = cfg.optim
