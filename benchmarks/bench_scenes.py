@@ -152,7 +152,8 @@ def main(argv=None) -> int:
 def write(results: dict, a) -> None:
     head = "| row | scene | " + " | ".join(c[0] for c in COLUMNS) + " | optimisation [s] |"
     flags = " ".join([f"--row {shlex.quote(r)}" for r in a.row] + ["--baseline"] * a.baseline +
-                     ([f"--track {shlex.quote(a.track)}"] if a.track else []))
+                     ([f"--track {shlex.quote(a.track)}"] if a.track else []) +
+                     ([f"--name {a.name}"] if a.name != "scenes" else []))
     lines = md_table_start("# The full method on synthetic scenes (same cached dense tracks for every row)",
                            f"Command: `.venv/bin/python benchmarks/bench_scenes.py --scenes {' '.join(a.scenes)}"
                            f"{' ' + flags if flags else ''}`", head)

@@ -1,0 +1,112 @@
+"""Where the dynamic ground-truth queries lose accuracy: their observations the result sees against those it
+carries through hidden frames (``optim.hidden``), by the gap to the nearest seen frame, with the error of the
+anchor (the seen frame the carry starts from) and of the carried step apart; and an oracle row, the carry re-run
+with each track's donors restricted to its own ground-truth object, which bounds what a better choice of donors
+could gain.
+
+    .venv/bin/python benchmarks/probe_hidden.py bench_out/scenes/run_hard0_0 bench_out/scenes/hard0
+
+RUN is a ``trackingworld run`` output folder, SCENE the synthetic scene it was run on (``bench_scenes.py`` keeps
+both in its cache). Writes ``benchmarks/results/probe_hidden_<scene>.md`` (and prints it). Reads the ground truth
+only to score and for the oracle row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from _common import write_results  # noqa: I001 (a sibling script module)
+from trackingworld.config import OptimConfig
+from trackingworld.eval.evaluate import load_gt
+from trackingworld.eval.match import match_queries
+from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
+from trackingworld.geometry import focal_length, invert_pose, nearest_pixel, transform
+from trackingworld.io.result import load_result
+from trackingworld.optim.hidden import carry_hidden
+from trackingworld.tracking2d.base import nearest_visible_frame
+
+THRESHOLDS_M = (0.05, 0.1, 0.2, 0.4, 0.8)  # the world 3D accuracy's (eval.tracks)
+GAPS = ((1, 2), (3, 5), (6, 10), (11, 20), (21, 10**6))
+
+
+def accuracy(err: np.ndarray) -> float:
+    """Mean over THRESHOLDS_M of the fraction of errors (metres) below each, in %; nan for none."""
+    return 100 * float(np.mean([(err < th).mean() for th in THRESHOLDS_M])) if err.size else float("nan")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", type=Path)
+    ap.add_argument("scene", type=Path)
+    a = ap.parse_args(argv)
+    res = load_result(a.run)
+    T, H, W = res.depth.shape
+    gt = load_gt(a.scene, T)
+    cfg = OptimConfig()
+    N, qf, gd = res.num_tracks, gt["query_frame"], gt["tracks_dynamic"]
+    x, y = nearest_pixel(res.tracks_2d[np.arange(N), res.query_frame], W, H)
+    inst = gt["instance"][res.query_frame, y, x]  # each result track's object at its query pixel (oracle)
+    dyn = np.flatnonzero(res.is_dynamic)
+    align = sim3_from_poses(res.poses_c2w, gt["poses_c2w"])
+    ev = gt["tracks_vis"].copy()
+    ev[np.arange(len(qf)), qf] = False  # the query frame itself is not scored
+
+    def score(xyz):
+        """(matched queries, their errors [Nq,T] metres after the poses' Sim(3))."""
+        m = match_queries(res.tracks_2d, res.visible, xyz, res.is_dynamic, qf, gt["query_uv"])
+        return m, np.linalg.norm(apply_sim3(align, m.xyz) - gt["tracks_xyz"], axis=-1)
+
+    # the carry as the pipeline runs it (motion scale from the result's own depths), and with object donors
+    vis = res.visible
+    few = dyn[:: max(1, len(dyn) // 4000)]
+    z = transform(invert_pose(res.poses_c2w)[None], res.tracks_3d[few])[..., 2][vis[few]]
+    scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(res.intrinsics) if z.size else 0.0
+
+    def carried(groups):
+        out = res.tracks_3d.copy()
+        for g in groups:
+            out[g] = carry_hidden(res.tracks_3d[g], vis[g], cfg.carry_k, cfg.carry_reach, uv=res.tracks_2d[g],
+                                  motion_scale=scale, stat=cfg.carry_stat)
+        return out
+
+    rows = [("result as written", res.tracks_3d), ("carry re-run", carried([dyn])),
+            ("carry, donors on the track's own object (oracle)", carried([dyn[inst[dyn] == i]
+                                                                         for i in np.unique(inst[dyn])]))]
+    lines = [f"# Hidden observations of the dynamic queries: `{a.scene.name}`", "",
+             f"Command: `.venv/bin/python benchmarks/probe_hidden.py {a.run} {a.scene}`", "",
+             "| carry | dynamic world acc | seen: acc (observations) | hidden: acc (observations) |",
+             "|---|---|---|---|"]
+    for name, xyz in rows:
+        m, err = score(xyz)
+        seen, hid = ev & m.visible & gd[:, None], ev & ~m.visible & gd[:, None]
+        lines.append(f"| {name} | {accuracy(err[ev & gd[:, None]]):.1f} | {accuracy(err[seen]):.1f} "
+                     f"({seen.sum():,}) | {accuracy(err[hid]):.1f} ({hid.sum():,}) |")
+    m, err = score(res.tracks_3d)
+    al = apply_sim3(align, m.xyz)
+    n, t = np.nonzero(ev & ~m.visible & gd[:, None])
+    s = nearest_visible_frame(m.visible)[n, t]  # the anchor: nearest frame the result sees the query in
+    gap = np.abs(t - s)
+    step_err = np.linalg.norm((al[n, t] - al[n, s]) - (gt["tracks_xyz"][n, t] - gt["tracks_xyz"][n, s]), axis=-1)
+    true_step = np.linalg.norm(gt["tracks_xyz"][n, t] - gt["tracks_xyz"][n, s], axis=-1)
+    lines += ["", "Hidden observations of the result by their gap (frames) to the anchor:", "",
+              "| gap | observations | acc | anchor acc | anchor median error [m] | step median error [m] | "
+              "true step median [m] |", "|---|---|---|---|---|---|---|"]
+    for lo, hi in GAPS:
+        g = (gap >= lo) & (gap <= hi)
+        if not g.any():
+            continue
+        lines.append(f"| {lo}-{hi if hi < 10**6 else ''} | {g.sum():,} | {accuracy(err[n, t][g]):.1f} | "
+                     f"{accuracy(err[n, s][g]):.1f} | {np.median(err[n, s][g]):.3f} | {np.median(step_err[g]):.3f} | "
+                     f"{np.median(true_step[g]):.3f} |")
+    write_results(f"probe_hidden_{a.scene.name}", lines,
+                  {"rows": [r for r in lines if r.startswith("| ") and not r.startswith("| carry")]})
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())
