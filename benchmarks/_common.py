@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import atexit
 import json
 import shutil
@@ -11,9 +12,10 @@ import time
 from pathlib import Path
 
 from trackingworld.config import RunConfig, Track2DConfig
-from trackingworld.eval.evaluate import evaluate_to_file
+from trackingworld.eval.evaluate import evaluate_to_file, load_gt
 from trackingworld.io.atomic import write_npz
 from trackingworld.io.frames import read_frames
+from trackingworld.io.result import Result, load_result
 from trackingworld.pipeline.run import run
 from trackingworld.pipeline.tracks import track_video
 
@@ -73,3 +75,14 @@ def write_results(stem: str, lines: list[str], data) -> None:
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     (out / f"{stem}.json").write_text(json.dumps(data, indent=1, default=float))
     print("\n".join(lines))
+
+
+def probe_inputs(doc: str, argv=None) -> tuple[Path, Path, Result, dict]:
+    """A probe's command line ``RUN SCENE`` (a ``trackingworld run`` folder, the synthetic scene it ran on) ->
+    (run folder, scene folder, the result, the scene's ground truth cut to the result's frames)."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", type=Path)
+    ap.add_argument("scene", type=Path)
+    a = ap.parse_args(argv)
+    res = load_result(a.run)
+    return a.run, a.scene, res, load_gt(a.scene, res.depth.shape[0])

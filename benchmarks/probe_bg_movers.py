@@ -10,29 +10,20 @@ Writes ``benchmarks/results/probe_bg_movers_<scene>.md`` (and prints it).
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from _common import write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.eval.dense import static_deviation
-from trackingworld.eval.evaluate import load_gt
 from trackingworld.geometry import invert_pose, nearest_pixel, transform
-from trackingworld.io.result import load_result
 
 DEVIATION_BINS = ((0, 2), (2, 4), (4, 8), (8, np.inf))  # px
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("run", type=Path)
-    ap.add_argument("scene", type=Path)
-    a = ap.parse_args(argv)
-    res = load_result(a.run)
+    run, scene, res, gt = probe_inputs(__doc__, argv)
     T, H, W = res.depth.shape
-    gt = load_gt(a.scene, T)
     N, q = res.num_tracks, res.query_frame
     x, y = nearest_pixel(res.tracks_2d[np.arange(N), q], W, H)
     on = gt["bg_mover"][q, y, x]
@@ -41,8 +32,8 @@ def main(argv=None) -> int:
     cam = gt["poses_c2w"][:, :3, 3]
     bg = gt["tracks_bg_mover"]
     moved = gt["tracks_xyz"][bg][:, -1] - gt["tracks_xyz"][bg][:, 0]
-    lines = [f"# Tracks on the movers the masks missed: `{a.scene.name}`", "",
-             f"Command: `.venv/bin/python benchmarks/probe_bg_movers.py {a.run} {a.scene}`", "",
+    lines = [f"# Tracks on the movers the masks missed: `{scene.name}`", "",
+             f"Command: `.venv/bin/python benchmarks/probe_bg_movers.py {run} {scene}`", "",
              f"Camera path {np.linalg.norm(np.diff(cam, axis=0), axis=1).sum():.2f} m; the ground-truth query tracks "
              f"on background movers ({int(bg.sum())}) move {np.median(np.linalg.norm(moved, axis=1)):.2f} m over the "
              f"video (median). Result tracks on them: {int(on.sum()):,}, labelled dynamic "
@@ -62,7 +53,7 @@ def main(argv=None) -> int:
         lines += ["", f"Those labelled static: camera depth at the query frame over the true depth {p50:.3f} (median; "
                   f"p10 {p10:.3f}, p90 {p90:.3f}); seen in {np.median(seen[missed]):.0f} frames (median); query "
                   f"frame 0 for {100 * (q[missed] == 0).mean():.0f}% of them."]
-    write_results(f"probe_bg_movers_{a.scene.name}", lines, {"lines": lines})
+    write_results(f"probe_bg_movers_{scene.name}", lines, {"lines": lines})
     return 0
 
 

@@ -13,19 +13,15 @@ only to score and for the oracle row.
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from _common import write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import OptimConfig
-from trackingworld.eval.evaluate import load_gt
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
 from trackingworld.geometry import focal_length, invert_pose, nearest_pixel, transform
-from trackingworld.io.result import load_result
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.tracking2d.base import nearest_visible_frame
 
@@ -39,13 +35,8 @@ def accuracy(err: np.ndarray) -> float:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("run", type=Path)
-    ap.add_argument("scene", type=Path)
-    a = ap.parse_args(argv)
-    res = load_result(a.run)
+    run, scene, res, gt = probe_inputs(__doc__, argv)
     T, H, W = res.depth.shape
-    gt = load_gt(a.scene, T)
     cfg = OptimConfig()
     N, qf, gd = res.num_tracks, gt["query_frame"], gt["tracks_dynamic"]
     x, y = nearest_pixel(res.tracks_2d[np.arange(N), res.query_frame], W, H)
@@ -76,8 +67,8 @@ def main(argv=None) -> int:
     rows = [("result as written", res.tracks_3d), ("carry re-run", carried([dyn])),
             ("carry, donors on the track's own object (oracle)", carried([dyn[inst[dyn] == i]
                                                                          for i in np.unique(inst[dyn])]))]
-    lines = [f"# Hidden observations of the dynamic queries: `{a.scene.name}`", "",
-             f"Command: `.venv/bin/python benchmarks/probe_hidden.py {a.run} {a.scene}`", "",
+    lines = [f"# Hidden observations of the dynamic queries: `{scene.name}`", "",
+             f"Command: `.venv/bin/python benchmarks/probe_hidden.py {run} {scene}`", "",
              "| carry | dynamic world acc | seen: acc (observations) | hidden: acc (observations) |",
              "|---|---|---|---|"]
     for name, xyz in rows:
@@ -102,7 +93,7 @@ def main(argv=None) -> int:
         lines.append(f"| {lo}-{hi if hi < 10**6 else ''} | {g.sum():,} | {accuracy(err[n, t][g]):.1f} | "
                      f"{accuracy(err[n, s][g]):.1f} | {np.median(err[n, s][g]):.3f} | {np.median(step_err[g]):.3f} | "
                      f"{np.median(true_step[g]):.3f} |")
-    write_results(f"probe_hidden_{a.scene.name}", lines,
+    write_results(f"probe_hidden_{scene.name}", lines,
                   {"rows": [r for r in lines if r.startswith("| ") and not r.startswith("| carry")]})
     return 0
 
