@@ -23,7 +23,7 @@ DEVIATION_BINS = ((0, 2), (2, 4), (4, 8), (8, np.inf))  # px
 
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
-    T, H, W = res.depth.shape
+    _, H, W = res.depth.shape
     N, q = res.num_tracks, res.query_frame
     x, y = nearest_pixel(res.tracks_2d[np.arange(N), q], W, H)
     on = gt["bg_mover"][q, y, x]

@@ -20,23 +20,24 @@ import numpy as np
 from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import OptimConfig
 from trackingworld.eval.match import match_queries
+from trackingworld.eval.tracks import THRESHOLDS_M
 from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
 from trackingworld.geometry import focal_length, invert_pose, nearest_pixel, transform
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.tracking2d.base import nearest_visible_frame
 
-THRESHOLDS_M = (0.05, 0.1, 0.2, 0.4, 0.8)  # the world 3D accuracy's (eval.tracks)
 GAPS = ((1, 2), (3, 5), (6, 10), (11, 20), (21, 10**6))
 
 
 def accuracy(err: np.ndarray) -> float:
-    """Mean over THRESHOLDS_M of the fraction of errors (metres) below each, in %; nan for none."""
+    """The world 3D accuracy (eval.tracks): mean over THRESHOLDS_M of the fraction of errors (metres) below each,
+    in %; nan for none."""
     return 100 * float(np.mean([(err < th).mean() for th in THRESHOLDS_M])) if err.size else float("nan")
 
 
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
-    T, H, W = res.depth.shape
+    _, H, W = res.depth.shape
     cfg = OptimConfig()
     N, qf, gd = res.num_tracks, gt["query_frame"], gt["tracks_dynamic"]
     x, y = nearest_pixel(res.tracks_2d[np.arange(N), res.query_frame], W, H)
@@ -71,12 +72,12 @@ def main(argv=None) -> int:
              f"Command: `.venv/bin/python benchmarks/probe_hidden.py {run} {scene}`", "",
              "| carry | dynamic world acc | seen: acc (observations) | hidden: acc (observations) |",
              "|---|---|---|---|"]
-    for name, xyz in rows:
-        m, err = score(xyz)
+    scored = [score(xyz) for _, xyz in rows]
+    for (name, _), (m, err) in zip(rows, scored, strict=True):
         seen, hid = ev & m.visible & gd[:, None], ev & ~m.visible & gd[:, None]
         lines.append(f"| {name} | {accuracy(err[ev & gd[:, None]]):.1f} | {accuracy(err[seen]):.1f} "
                      f"({seen.sum():,}) | {accuracy(err[hid]):.1f} ({hid.sum():,}) |")
-    m, err = score(res.tracks_3d)
+    m, err = scored[0]  # the result as written
     al = apply_sim3(align, m.xyz)
     n, t = np.nonzero(ev & ~m.visible & gd[:, None])
     s = nearest_visible_frame(m.visible)[n, t]  # the anchor: nearest frame the result sees the query in
@@ -93,8 +94,7 @@ def main(argv=None) -> int:
         lines.append(f"| {lo}-{hi if hi < 10**6 else ''} | {g.sum():,} | {accuracy(err[n, t][g]):.1f} | "
                      f"{accuracy(err[n, s][g]):.1f} | {np.median(err[n, s][g]):.3f} | {np.median(step_err[g]):.3f} | "
                      f"{np.median(true_step[g]):.3f} |")
-    write_results(f"probe_hidden_{scene.name}", lines,
-                  {"rows": [r for r in lines if r.startswith("| ") and not r.startswith("| carry")]})
+    write_results(f"probe_hidden_{scene.name}", lines, {"lines": lines})
     return 0
 
 
