@@ -80,3 +80,57 @@ def test_depth_discrepancy_removes_the_priors_smooth_warp_and_finds_the_epipolar
     # without the fields (the raw log ratio) static regions are flagged
     raw = depth_movers(k, fr, uv[static[k], fr], e_raw, N, T, (240, 320), 0.05, 20)
     assert raw[~patch].mean() > 0.05
+
+
+def test_suspects_left_out_of_the_fields_unhide_a_large_mover(rng):
+    """A patch about a field cell across whose fitted points are 12% too far: fitted among the static tracks, it
+    pulls its frames' fields toward itself and hides most of itself; the rounds that leave the suspects (the
+    tracks over half the threshold) out of the fields find it, and still no static region."""
+    from dataclasses import replace
+
+    from trackingworld.config import OptimConfig
+
+    T, N = 5, 6000
+    c2w = np.tile(np.eye(4), (T, 1, 1))
+    c2w[:, 0, 3] = 0.05 * np.arange(T)
+    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
+    z = rng.uniform(4, 8, N)
+    patch = (np.abs(uv0[:, 0] - 200) < 30) & (np.abs(uv0[:, 1] - 100) < 30)
+    X_true = unproject(uv0, z, K)
+    xyz = np.repeat(unproject(uv0, z * np.where(patch, 1.12, 1.0), K)[:, None], T, 1)
+    uv, z_cam = project(transform(invert_pose(c2w)[None], np.repeat(X_true[:, None], T, 1)), K)
+    D = z_cam * np.exp(0.1 * rng.standard_normal(T)[None] + rng.normal(0, 0.01, z_cam.shape))
+    vis = np.ones((N, T), bool)
+    static = np.arange(N)
+    cfg = replace(OptimConfig(), test_frames=0, depth_mover_log=0.05)
+    found = {}
+    for rounds, suspect in ((2, 1.0), (3, 0.5)):
+        c = replace(cfg, depth_mover_rounds=rounds, depth_mover_suspect=suspect)
+        found[rounds, suspect] = prior_fields.depth_mover_test(static, static, uv, vis, xyz, D, c2w, (240, 320), c)[0]
+    assert found[3, 0.5][patch].mean() > 0.8 and found[3, 0.5][~patch].mean() < 0.01
+    assert found[2, 1.0][patch].mean() < found[3, 0.5][patch].mean() - 0.2
+
+
+def test_blur_tolerant_forgives_a_blurred_depth_edge_and_not_a_mover(rng):
+    """A prior with a depth step (4 m | 8 m at x = 160) blurred over 2 px: the observations at the edge whose fitted
+    depth is their own side's true depth read a large discrepancy at their pixel and none within 2 px; a patch
+    fitted 10% too far keeps its 10%."""
+    import cv2
+
+    from trackingworld.optim.depth_movers import blur_tolerant
+
+    T, H, W = 2, 60, 320
+    truth = np.where(np.arange(W)[None] < 160, 4.0, 8.0) * np.ones((T, H, W))
+    prior = np.stack([cv2.GaussianBlur(d.astype(np.float32), (0, 0), 1.0) for d in truth])
+    uv = np.stack([rng.uniform(150, 170, 400), rng.uniform(5, 55, 400)], 1)
+    t = np.sort(rng.integers(0, T, 400))
+    px = np.rint(uv).astype(int)
+    z = truth[t, px[:, 1], px[:, 0]] * np.where(uv[:, 0] > 165, 1.1, 1.0)  # the far side's right part: a mover
+    e = np.log(z / prior[t, px[:, 1], px[:, 0]])
+    edge = np.abs(px[:, 0] - 159.5) < 2
+    assert np.abs(e[edge]).max() > 0.2  # the blur, read at the pixel
+    got = blur_tolerant(e, t, uv, prior, 2)
+    assert np.abs(got[edge]).max() < 0.01  # (the Gaussian's tail beyond 2 px)
+    mover = uv[:, 0] > 166
+    assert np.allclose(got[mover], np.log(1.1), atol=1e-3)
+    assert blur_tolerant(e, t, uv, prior, 0) is e

@@ -102,10 +102,19 @@ class OptimConfig:
     refine_focal: str = "auto"
     # movers the masks missed that slide along the epipolar lines (a static point at another depth explains
     # their pixels): static tracks whose fitted depth disagrees with the prior by this much (log units, after the
-    # frame's field) in a local majority of a window_px square, in most of their frames, become dynamic
-    # (optim.depth_movers; not in the paper; 0: off)
-    depth_mover_log: float = 0.05
+    # frame's field, to the nearest prior value within depth_mover_range_px) in a local majority of a window_px
+    # square, in most of their frames, become dynamic (optim.depth_movers; not in the paper; 0: off)
+    depth_mover_log: float = 0.03
     depth_mover_window_px: float = 20.0
+    # the test's rounds: each fits the frames' fields again without the movers found and the suspects (tracks
+    # that pass the test at depth_mover_suspect x the threshold), which otherwise pull the field toward
+    # themselves where they fill much of a field cell (pipeline.fields.depth_mover_test); suspect 1: movers only
+    depth_mover_rounds: int = 3
+    depth_mover_suspect: float = 0.5
+    # each discrepancy measured to the nearest prior value within this many px (0: the value at the pixel): the
+    # prior blurs across depth edges, and a static point beside one reads a mix of both sides
+    # (optim.depth_movers.blur_tolerant)
+    depth_mover_range_px: int = 1
     # stage 3: dynamic objects
     lambda_arap: float = 100.0
     lambda_ts: float = 10.0

@@ -306,6 +306,15 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--depth-mover-rounds", type=int, default=d.depth_mover_rounds, metavar="N",
+                   help="rounds of that test, each against the frames' fields fitted again without the movers and "
+                        "suspects the last round found")
+    g.add_argument("--depth-mover-suspect", type=float, default=d.depth_mover_suspect, metavar="FRAC",
+                   help="tracks that pass the test at this fraction of --depth-mover are left out of the next "
+                        "round's fields without being called movers (1: the movers only)")
+    g.add_argument("--depth-mover-range", type=int, default=d.depth_mover_range_px, metavar="PX",
+                   help="measure each discrepancy to the nearest prior value within this many px (the prior's "
+                        "blur at depth edges; 0: the value at the pixel)")
     g.add_argument("--stage2-reject", action=argparse.BooleanOptionalAction, default=d.stage2_reject,
                    help="(not in the paper) stage 2 solved again without the observations whose offset reached "
                         "epsilon (a moving object's pull on the poses); --no-stage2-reject: one solve, the paper")
@@ -364,6 +373,8 @@ def _optim_config(a):
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
+        depth_mover_rounds=a.depth_mover_rounds, depth_mover_suspect=a.depth_mover_suspect,
+        depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
         vote_flip_px=a.vote_flip_px,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,

@@ -75,6 +75,31 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
     return out
 
 
+def blur_tolerant(e: np.ndarray, t: np.ndarray, uv: np.ndarray, prior: np.ndarray, radius: int) -> np.ndarray:
+    """[M] log units: the discrepancies ``e [M]`` (fitted over prior, at observations in frames ``t [M]``
+    ascending, pixels ``uv [M,2]``) measured to the nearest value of the log prior ``[T,H,W]`` metres within
+    ``radius`` px of the pixel instead of the value at it (0 where the fitted depth lies within the prior's range
+    there). A monocular prior blurs across depth edges: a static point beside one reads a mix of both sides, a
+    discrepancy of up to the edge's step, while its own depth lies a pixel or two away. A mover the bundle
+    adjustment placed at the wrong depth disagrees with every pixel around it. ``radius`` 0: ``e``."""
+    if radius <= 0 or not len(e):
+        return e
+    _, h, w = prior.shape
+    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
+    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
+    kernel = np.ones((2 * radius + 1,) * 2, np.uint8)
+    out = e.copy()
+    bounds = np.searchsorted(t, np.arange(len(prior) + 1))
+    for f in np.flatnonzero(np.diff(bounds)):
+        s = slice(bounds[f], bounds[f + 1])
+        log_d = np.log(np.maximum(prior[f], 1e-6, dtype=np.float32))
+        at = log_d[y[s], x[s]]
+        below = e[s] - (cv2.dilate(log_d, kernel)[y[s], x[s]] - at)  # > 0: beyond the farthest value near
+        above = e[s] - (cv2.erode(log_d, kernel)[y[s], x[s]] - at)  # < 0: nearer than the nearest value near
+        out[s] = np.where(below > 0, below, np.where(above < 0, above, 0.0))
+    return out
+
+
 def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The observations ``obs [n,T]`` (bool) of ``tracks`` [n] (indices) in frame order and the log ratio of the
     camera depth of their world position to the prior: (position in ``tracks`` [M], frame [M], log(z / D) [M])."""

@@ -13,14 +13,13 @@ from scipy.spatial import cKDTree
 from trackingworld.config import DC_TARGETS, OptimConfig
 from trackingworld.geometry import invert_pose, transform
 from trackingworld.optim.densify import propagate_ratio, thinned_observations
-from trackingworld.optim.depth_movers import depth_movers, less_fields, log_depth_ratios
+from trackingworld.optim.depth_movers import blur_tolerant, depth_movers, less_fields, log_depth_ratios
 from trackingworld.optim.edge_prior import inner_prior
 from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.static_tests import spread_observations
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.tracking2d.flow_tracker import sample_image
 
-DEPTH_MOVER_ROUNDS = 2  # rounds of (fields of the static tracks, depth-discrepancy test)
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 
 
@@ -148,21 +147,30 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return fit_log_fields(out, shape, cells, smooth, temporal)
 
 
-def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig):
+def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig, prior=None):
     """The depth-discrepancy test (``optim.depth_movers``) of the tracks ``cand`` (indices) against the fields of
-    the ``static`` ones, in DEPTH_MOVER_ROUNDS rounds (the fields again without the movers found: they pull them).
-    Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by stage 3's target)."""
+    the ``static`` ones, in ``cfg.depth_mover_rounds`` rounds: each fits the fields again without the movers and
+    the suspects of the round before (the tracks that pass the test at ``depth_mover_suspect`` x its threshold).
+    A missed mover that fills much of a field cell pulls the field toward its own depth and so hides itself (the
+    synthetic ``default`` seed 13: a mover's discrepancy 0.13 before the field, 0.04 after it); left out of the
+    field, it shows again. Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by
+    stage 3's target). ``prior [T,H,W]`` (with ``cfg.depth_mover_range_px``): each discrepancy is measured to the
+    nearest prior value within that many px (``optim.depth_movers.blur_tolerant``)."""
     thinned = reference_ratios(static, uv, vis, xyz, D, poses)  # thinned once, filtered by static_fields
     # at most about test_frames of each track's frames, spread over its span (as the classification)
     obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
     k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
     uv_obs = uv[cand[k], t]
-    movers = np.zeros(len(cand), bool)
-    for _ in range(DEPTH_MOVER_ROUNDS):
-        ref = np.setdiff1d(static, cand[movers], assume_unique=True)
+    movers = left_out = np.zeros(len(cand), bool)
+    for _ in range(max(cfg.depth_mover_rounds, 1)):
+        ref = np.setdiff1d(static, cand[movers | left_out], assume_unique=True)
         fields = static_fields(ref, uv, vis, xyz, D, poses, shape, cfg.dc_field_cells, cfg.dc_field_smooth,
                                refs=thinned)
         keep, e = less_fields(uv_obs, t, e_raw, fields)
-        movers = depth_movers(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
-                              cfg.depth_mover_log, cfg.depth_mover_window_px)
+        if prior is not None:
+            e = blur_tolerant(e, t[keep], uv_obs[keep], prior, cfg.depth_mover_range_px)
+        test = (k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape)
+        movers = depth_movers(*test, cfg.depth_mover_log, cfg.depth_mover_window_px)
+        if cfg.depth_mover_suspect < 1:
+            left_out = depth_movers(*test, cfg.depth_mover_log * cfg.depth_mover_suspect, cfg.depth_mover_window_px)
     return movers, thinned

@@ -207,7 +207,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
-                                               prior.shape[1:], cfg)
+                                               prior.shape[1:], cfg, prior)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
     if cfg.own_test:
@@ -249,6 +249,10 @@ def check_optim(o: OptimConfig) -> None:
     if o.vote_colour_sigma < 0 or o.vote_k < 1:
         raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k}: the colour "
                          "weight's width is 0 (off) or more, the voters 1 or more")
+    if o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1 or o.depth_mover_range_px < 0:
+        raise InputError(f"depth_mover_rounds {o.depth_mover_rounds} / depth_mover_suspect {o.depth_mover_suspect} / "
+                         f"depth_mover_range_px {o.depth_mover_range_px}: the rounds are 1 or more, the suspects' "
+                         "fraction of the threshold over 0 and at most 1, the range 0 px or more")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
