@@ -117,7 +117,7 @@ def test_blur_tolerant_forgives_a_blurred_depth_edge_and_not_a_mover(rng):
     fitted 10% too far keeps its 10%."""
     import cv2
 
-    from trackingworld.optim.depth_movers import blur_tolerant
+    from trackingworld.optim.depth_movers import blur_tolerant, prior_spread
 
     T, H, W = 2, 60, 320
     truth = np.where(np.arange(W)[None] < 160, 4.0, 8.0) * np.ones((T, H, W))
@@ -129,8 +129,10 @@ def test_blur_tolerant_forgives_a_blurred_depth_edge_and_not_a_mover(rng):
     e = np.log(z / prior[t, px[:, 1], px[:, 0]])
     edge = np.abs(px[:, 0] - 159.5) < 2
     assert np.abs(e[edge]).max() > 0.2  # the blur, read at the pixel
-    got = blur_tolerant(e, t, uv, prior, 2)
+    far, near = prior_spread(t, uv, prior, 2)
+    assert (far >= 0).all() and (near <= 0).all()
+    got = blur_tolerant(e, far, near)
     assert np.abs(got[edge]).max() < 0.01  # (the Gaussian's tail beyond 2 px)
     mover = uv[:, 0] > 166
     assert np.allclose(got[mover], np.log(1.1), atol=1e-3)
-    assert blur_tolerant(e, t, uv, prior, 0) is e
+    assert np.array_equal(blur_tolerant(e, *prior_spread(t, uv, prior, 0)), e)  # radius 0: the value at the pixel

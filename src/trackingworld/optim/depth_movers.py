@@ -9,8 +9,9 @@ every frame.
 The test, per visible observation of each static track (the pipeline passes at most about 16 of each track's
 frames, spread over its span): the discrepancy ``e = log(z / D) - f_t(uv)`` between
 the camera depth ``z`` of its fitted point and the prior ``D``, less the frame's smooth correction field of the
-static tracks (``optim.ratio_field``: the prior's own scale and warp). One observation is noisy (the prior's
-noise, its blur at depth edges), so the decision is a local majority: per frame, the fraction of observations
+static tracks (``optim.ratio_field``: the prior's own scale and warp), taken to the nearest prior value within a
+pixel or two (:func:`blur_tolerant`: the prior's blur at depth edges). One observation is noisy (the prior's
+noise), so the decision is a local majority: per frame, the fraction of observations
 over ``e >= thresh`` (or ``<= -thresh``) in a window of ``window_px`` around each one, and a track is a mover
 when more than half of its frames have a majority in the same direction. A median filter of scattered samples
 is what this is; per frame it is counts on a grid of cells and two box filters (OpenCV), so the cost stays
@@ -75,29 +76,33 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
     return out
 
 
-def blur_tolerant(e: np.ndarray, t: np.ndarray, uv: np.ndarray, prior: np.ndarray, radius: int) -> np.ndarray:
-    """[M] log units: the discrepancies ``e [M]`` (fitted over prior, at observations in frames ``t [M]``
-    ascending, pixels ``uv [M,2]``) measured to the nearest value of the log prior ``[T,H,W]`` metres within
-    ``radius`` px of the pixel instead of the value at it (0 where the fitted depth lies within the prior's range
-    there). A monocular prior blurs across depth edges: a static point beside one reads a mix of both sides, a
-    discrepancy of up to the edge's step, while its own depth lies a pixel or two away. A mover the bundle
-    adjustment placed at the wrong depth disagrees with every pixel around it. ``radius`` 0: ``e``."""
-    if radius <= 0 or not len(e):
-        return e
+def prior_spread(t: np.ndarray, uv: np.ndarray, prior: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """The range of the prior around observations in frames ``t [M]`` (ascending) at pixels ``uv [M,2]``: (far,
+    near), each [M] log units, the log of the farthest / nearest value of the prior ``[T,H,W]`` metres within
+    ``radius`` px (a square) over its value at the pixel (far >= 0 >= near). Per frame, a grey dilation and
+    erosion of the log prior (OpenCV)."""
     _, h, w = prior.shape
     x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
     y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
     kernel = np.ones((2 * radius + 1,) * 2, np.uint8)
-    out = e.copy()
+    far, near = np.zeros(len(t)), np.zeros(len(t))
     bounds = np.searchsorted(t, np.arange(len(prior) + 1))
     for f in np.flatnonzero(np.diff(bounds)):
         s = slice(bounds[f], bounds[f + 1])
         log_d = np.log(np.maximum(prior[f], 1e-6, dtype=np.float32))
         at = log_d[y[s], x[s]]
-        below = e[s] - (cv2.dilate(log_d, kernel)[y[s], x[s]] - at)  # > 0: beyond the farthest value near
-        above = e[s] - (cv2.erode(log_d, kernel)[y[s], x[s]] - at)  # < 0: nearer than the nearest value near
-        out[s] = np.where(below > 0, below, np.where(above < 0, above, 0.0))
-    return out
+        far[s] = cv2.dilate(log_d, kernel)[y[s], x[s]] - at
+        near[s] = cv2.erode(log_d, kernel)[y[s], x[s]] - at
+    return far, near
+
+
+def blur_tolerant(e: np.ndarray, far: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """[M] log units: the discrepancies ``e [M]`` (fitted over prior) measured to the nearest value of the prior
+    in the range (``far``, ``near`` [M], :func:`prior_spread`) instead of the value at the pixel: 0 where the
+    fitted depth lies within it. A monocular prior blurs across depth edges: a static point beside one reads a
+    mix of both sides, a discrepancy of up to the edge's step, while its own depth lies a pixel or two away. A
+    mover the bundle adjustment placed at the wrong depth disagrees with every pixel around it."""
+    return np.where(e > far, e - far, np.where(e < near, e - near, 0.0))
 
 
 def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from trackingworld.config import DC_TARGETS, OptimConfig
 from trackingworld.geometry import invert_pose, transform
 from trackingworld.optim.densify import propagate_ratio, thinned_observations
-from trackingworld.optim.depth_movers import blur_tolerant, depth_movers, less_fields, log_depth_ratios
+from trackingworld.optim.depth_movers import blur_tolerant, depth_movers, less_fields, log_depth_ratios, prior_spread
 from trackingworld.optim.edge_prior import inner_prior
 from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.static_tests import spread_observations
@@ -161,14 +161,17 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
     k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
     uv_obs = uv[cand[k], t]
+    spread = None  # the prior's range around each observation (its blur at depth edges)
+    if prior is not None and cfg.depth_mover_range_px > 0:
+        spread = prior_spread(t, uv_obs, prior, cfg.depth_mover_range_px)
     movers = left_out = np.zeros(len(cand), bool)
     for _ in range(max(cfg.depth_mover_rounds, 1)):
         ref = np.setdiff1d(static, cand[movers | left_out], assume_unique=True)
         fields = static_fields(ref, uv, vis, xyz, D, poses, shape, cfg.dc_field_cells, cfg.dc_field_smooth,
                                refs=thinned)
         keep, e = less_fields(uv_obs, t, e_raw, fields)
-        if prior is not None:
-            e = blur_tolerant(e, t[keep], uv_obs[keep], prior, cfg.depth_mover_range_px)
+        if spread is not None:
+            e = blur_tolerant(e, spread[0][keep], spread[1][keep])
         test = (k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape)
         movers = depth_movers(*test, cfg.depth_mover_log, cfg.depth_mover_window_px)
         if cfg.depth_mover_suspect < 1:
