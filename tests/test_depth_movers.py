@@ -46,21 +46,29 @@ def test_depth_movers_flag_a_coherent_region_and_not_scattered_outliers(rng):
     assert not depth_movers(*(np.zeros(0, int),) * 2, np.zeros((0, 2)), np.zeros(0), 5, 4, (240, 320)).any()
 
 
+def _fitted_patch(rng, T: int, N: int, half_h: float):
+    """N static points 4-8 m away seen by a camera sliding 5 cm a frame over T frames, whose fitted static points
+    (what the bundle adjustment returns) are right except in a patch 60 px wide and 2 half_h px high around (200,
+    100) px, 12% too far (a mover along the epipolar lines): (c2w [T,4,4], patch [N] bool, fitted xyz [N,T,3],
+    true pixels uv [N,T,2], true camera depth [N,T])."""
+    c2w = np.tile(np.eye(4), (T, 1, 1))
+    c2w[:, 0, 3] = 0.05 * np.arange(T)
+    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
+    z = rng.uniform(4, 8, N)
+    patch = (np.abs(uv0[:, 0] - 200) < 30) & (np.abs(uv0[:, 1] - 100) < half_h)
+    X_true = unproject(uv0, z, K)
+    X_fit = unproject(uv0, z * np.where(patch, 1.12, 1.0), K)  # frame 0's camera = world
+    uv, z_cam = project(transform(invert_pose(c2w)[None], np.repeat(X_true[:, None], T, 1)), K)
+    return c2w, patch, np.repeat(X_fit[:, None], T, 1), uv, z_cam
+
+
 def test_depth_discrepancy_removes_the_priors_smooth_warp_and_finds_the_epipolar_mover(rng):
     """Static points and a patch whose fitted static points are 12% too far (what a mover along the epipolar
     lines gets from the bundle adjustment), under a prior off by a per-frame scale and a smooth warp of +-8%: with
     each frame's field removed, the patch is found and no static region is; the raw log ratio without the field
     flags static regions."""
     T, N = 5, 5000
-    c2w = np.tile(np.eye(4), (T, 1, 1))
-    c2w[:, 0, 3] = 0.05 * np.arange(T)
-    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
-    z = rng.uniform(4, 8, N)
-    patch = (np.abs(uv0[:, 0] - 200) < 30) & (np.abs(uv0[:, 1] - 100) < 25)
-    X_true = unproject(uv0, z, K)
-    X_fit = unproject(uv0, z * np.where(patch, 1.12, 1.0), K)  # fitted static points, frame 0's camera = world
-    xyz = np.repeat(X_fit[:, None], T, 1)
-    uv, z_cam = project(transform(invert_pose(c2w)[None], np.repeat(X_true[:, None], T, 1)), K)
+    c2w, patch, xyz, uv, z_cam = _fitted_patch(rng, T, N, 25)
     x, y = uv[..., 0] / 320, uv[..., 1] / 320
     t = np.arange(T)[None]
     warp = 0.08 * np.cos(2 * np.pi * (0.6 * x - 0.4 * y) + 0.4 * t) + 0.1 * rng.standard_normal(T)[None]
@@ -91,14 +99,7 @@ def test_suspects_left_out_of_the_fields_unhide_a_large_mover(rng):
     from trackingworld.config import OptimConfig
 
     T, N = 5, 6000
-    c2w = np.tile(np.eye(4), (T, 1, 1))
-    c2w[:, 0, 3] = 0.05 * np.arange(T)
-    uv0 = rng.uniform([0, 0], [319, 239], (N, 2))
-    z = rng.uniform(4, 8, N)
-    patch = (np.abs(uv0[:, 0] - 200) < 30) & (np.abs(uv0[:, 1] - 100) < 30)
-    X_true = unproject(uv0, z, K)
-    xyz = np.repeat(unproject(uv0, z * np.where(patch, 1.12, 1.0), K)[:, None], T, 1)
-    uv, z_cam = project(transform(invert_pose(c2w)[None], np.repeat(X_true[:, None], T, 1)), K)
+    c2w, patch, xyz, uv, z_cam = _fitted_patch(rng, T, N, 30)
     D = z_cam * np.exp(0.1 * rng.standard_normal(T)[None] + rng.normal(0, 0.01, z_cam.shape))
     vis = np.ones((N, T), bool)
     static = np.arange(N)
