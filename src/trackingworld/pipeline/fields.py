@@ -165,7 +165,8 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     if prior is not None and cfg.depth_mover_range_px > 0:
         spread = prior_spread(t, uv_obs, prior, cfg.depth_mover_range_px)
     movers = left_out = np.zeros(len(cand), bool)
-    for _ in range(max(cfg.depth_mover_rounds, 1)):
+    rounds = max(cfg.depth_mover_rounds, 1)
+    for r in range(rounds):
         ref = np.setdiff1d(static, cand[movers | left_out], assume_unique=True)
         fields = static_fields(ref, uv, vis, xyz, D, poses, shape, cfg.dc_field_cells, cfg.dc_field_smooth,
                                refs=thinned)
@@ -174,6 +175,6 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
             e = blur_tolerant(e, spread[0][keep], spread[1][keep])
         test = (k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape)
         movers = depth_movers(*test, cfg.depth_mover_log, cfg.depth_mover_window_px)
-        if cfg.depth_mover_suspect < 1:
+        if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # for the next round's fields
             left_out = depth_movers(*test, cfg.depth_mover_log * cfg.depth_mover_suspect, cfg.depth_mover_window_px)
     return movers, thinned
