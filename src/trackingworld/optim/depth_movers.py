@@ -9,11 +9,11 @@ every frame.
 The test, per visible observation of each static track (the pipeline passes at most about 16 of each track's
 frames, spread over its span): the discrepancy ``e = log(z / D) - f_t(uv)`` between
 the camera depth ``z`` of its fitted point and the prior ``D``, less the frame's smooth correction field of the
-static tracks (``optim.ratio_field``: the prior's own scale and warp), taken to the nearest prior value within a
-pixel or two (:func:`blur_tolerant`: the prior's blur at depth edges). One observation is noisy (the prior's
-noise), so the decision is a local majority: per frame, the fraction of observations
-over ``e >= thresh`` (or ``<= -thresh``) in a window of ``window_px`` around each one, and a track is a mover
-when more than half of its frames have a majority in the same direction. A median filter of scattered samples
+static tracks (``optim.ratio_field``: the prior's own scale and warp), taken to the nearest of the prior's value
+at the pixel and its extremes within a pixel (:func:`blur_tolerant`: the prior's blur at depth edges). One
+observation is noisy (the prior's noise), so the decision is a local majority: per frame, the fraction of
+observations over ``e >= thresh`` (or ``<= -thresh``) in a window of ``window_px`` around each one, and a track is
+a mover when more than half of its frames have a majority in the same direction. A median filter of scattered samples
 is what this is; per frame it is counts on a grid of cells and two box filters (OpenCV), so the cost stays
 linear in the observations.
 
@@ -97,12 +97,16 @@ def prior_spread(t: np.ndarray, uv: np.ndarray, prior: np.ndarray, radius: int) 
 
 
 def blur_tolerant(e: np.ndarray, far: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """[M] log units: the discrepancies ``e [M]`` (fitted over prior) measured to the nearest value of the prior
-    in the range (``far``, ``near`` [M], :func:`prior_spread`) instead of the value at the pixel: 0 where the
-    fitted depth lies within it. A monocular prior blurs across depth edges: a static point beside one reads a
-    mix of both sides, a discrepancy of up to the edge's step, while its own depth lies a pixel or two away. A
-    mover the bundle adjustment placed at the wrong depth disagrees with every pixel around it."""
-    return np.where(e > far, e - far, np.where(e < near, e - near, 0.0))
+    """[M] log units: the discrepancies ``e [M]`` (fitted over prior) measured to whichever is nearest of the
+    prior's value at the pixel and its farthest and nearest values within reach (``far``, ``near`` [M],
+    :func:`prior_spread`). A monocular prior blurs across depth edges: a static point beside one reads a mix of
+    both sides at its pixel, while its own side's depth lies a pixel or two away, at one end of that range. A
+    fit that lies between the two sides is not forgiven: at a mover's rim, the background's depth within reach
+    would otherwise excuse a point the bundle adjustment placed too far (a range-as-interval rule did so, see
+    ``docs/lifting.md`` item 5)."""
+    ends = np.stack([np.zeros_like(e), far, near])
+    nearest = np.argmin(np.abs(e[None] - ends), axis=0)
+    return e - ends[nearest, np.arange(len(e))]
 
 
 def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
