@@ -102,7 +102,7 @@ class OptimConfig:
     refine_focal: str = "auto"
     # movers the masks missed that slide along the epipolar lines (a static point at another depth explains
     # their pixels): static tracks whose fitted depth disagrees with the prior by this much (log units, after the
-    # frame's field, to the nearest prior value within depth_mover_range_px) in a local majority of a window_px
+    # frame's field, to the prior or its extremes within depth_mover_range_px) in a local majority of a window_px
     # square, in most of their frames, become dynamic (optim.depth_movers; not in the paper; 0: off)
     depth_mover_log: float = 0.03
     depth_mover_window_px: float = 20.0
@@ -111,9 +111,9 @@ class OptimConfig:
     # themselves where they fill much of a field cell (pipeline.fields.depth_mover_test); suspect 1: movers only
     depth_mover_rounds: int = 3
     depth_mover_suspect: float = 0.5
-    # each discrepancy measured to the nearest prior value within this many px (0: the value at the pixel): the
-    # prior blurs across depth edges, and a static point beside one reads a mix of both sides
-    # (optim.depth_movers.blur_tolerant)
+    # each discrepancy measured to the nearest of the prior at the pixel and the prior's farthest and nearest values
+    # within this many px (0: the value at the pixel alone): the prior blurs across depth edges, and a static point
+    # beside one reads a mix of both sides, its own side's depth a pixel away (optim.depth_movers.blur_tolerant)
     depth_mover_range_px: int = 1
     # stage 3: dynamic objects
     lambda_arap: float = 100.0

@@ -313,8 +313,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="tracks that pass the test at this fraction of --depth-mover are left out of the next "
                         "round's fields without being called movers (1: the movers only)")
     g.add_argument("--depth-mover-range", type=int, default=d.depth_mover_range_px, metavar="PX",
-                   help="measure each discrepancy to the nearest prior value within this many px (the prior's "
-                        "blur at depth edges; 0: the value at the pixel)")
+                   help="measure each discrepancy to the nearest of the prior at the pixel and its farthest and "
+                        "nearest values within this many px (the prior's blur at depth edges; 0: the pixel's value)")
     g.add_argument("--stage2-reject", action=argparse.BooleanOptionalAction, default=d.stage2_reject,
                    help="(not in the paper) stage 2 solved again without the observations whose offset reached "
                         "epsilon (a moving object's pull on the poses); --no-stage2-reject: one solve, the paper")

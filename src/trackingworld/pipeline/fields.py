@@ -155,7 +155,7 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     synthetic ``default`` seed 13: a mover's discrepancy 0.13 before the field, 0.04 after it); left out of the
     field, it shows again. Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by
     stage 3's target). ``prior [T,H,W]`` (with ``cfg.depth_mover_range_px``): each discrepancy is measured to the
-    nearest prior value within that many px (``optim.depth_movers.blur_tolerant``)."""
+    nearest of the prior at the pixel and its extremes within that many px (``optim.depth_movers.blur_tolerant``)."""
     thinned = reference_ratios(static, uv, vis, xyz, D, poses)  # thinned once, filtered by static_fields
     # at most about test_frames of each track's frames, spread over its span (as the classification)
     obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
