@@ -11,8 +11,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from trackingworld.config import RunConfig, Track2DConfig
 from trackingworld.eval.evaluate import evaluate_to_file, load_gt
+from trackingworld.geometry import nearest_pixel
 from trackingworld.io.atomic import write_npz
 from trackingworld.io.frames import read_frames
 from trackingworld.io.result import Result, load_result
@@ -86,3 +89,9 @@ def probe_inputs(doc: str, argv=None) -> tuple[Path, Path, Result, dict]:
     a = ap.parse_args(argv)
     res = load_result(a.run)
     return a.run, a.scene, res, load_gt(a.scene, res.depth.shape[0])
+
+
+def query_pixels(res: Result):
+    """(x [N], y [N]) int: each result track's pixel at its query frame, to read ground-truth maps there."""
+    _, H, W = res.depth.shape
+    return nearest_pixel(res.tracks_2d[np.arange(res.num_tracks), res.query_frame], W, H)

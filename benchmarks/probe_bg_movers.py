@@ -14,18 +14,17 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.eval.dense import static_deviation
-from trackingworld.geometry import invert_pose, nearest_pixel, transform
+from trackingworld.geometry import invert_pose, transform
 
 DEVIATION_BINS = ((0, 2), (2, 4), (4, 8), (8, np.inf))  # px
 
 
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
-    _, H, W = res.depth.shape
-    N, q = res.num_tracks, res.query_frame
-    x, y = nearest_pixel(res.tracks_2d[np.arange(N), q], W, H)
+    q = res.query_frame
+    x, y = query_pixels(res)
     on = gt["bg_mover"][q, y, x]
     dev = static_deviation(res.tracks_2d, res.visible, q, gt["depth"], gt["poses_c2w"], gt["K"])
     seen = res.visible.sum(1)

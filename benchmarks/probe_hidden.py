@@ -17,12 +17,12 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import OptimConfig
 from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import THRESHOLDS_M
 from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
-from trackingworld.geometry import focal_length, invert_pose, nearest_pixel, transform
+from trackingworld.geometry import focal_length, invert_pose, transform
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.tracking2d.base import nearest_visible_frame
 
@@ -37,10 +37,9 @@ def accuracy(err: np.ndarray) -> float:
 
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
-    _, H, W = res.depth.shape
     cfg = OptimConfig()
-    N, qf, gd = res.num_tracks, gt["query_frame"], gt["tracks_dynamic"]
-    x, y = nearest_pixel(res.tracks_2d[np.arange(N), res.query_frame], W, H)
+    qf, gd = gt["query_frame"], gt["tracks_dynamic"]
+    x, y = query_pixels(res)
     inst = gt["instance"][res.query_frame, y, x]  # each result track's object at its query pixel (oracle)
     dyn = np.flatnonzero(res.is_dynamic)
     align = sim3_from_poses(res.poses_c2w, gt["poses_c2w"])

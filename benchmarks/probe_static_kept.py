@@ -18,9 +18,8 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.eval.dense import static_deviation
-from trackingworld.geometry import nearest_pixel
 from trackingworld.io.priors import load_masks
 from trackingworld.io.tracks import load_tracks
 
@@ -29,9 +28,8 @@ ON_POINT_PX = 2.0  # a track within this of its static point over every visible 
 
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
-    T, H, W = res.depth.shape
-    N, q = res.num_tracks, res.query_frame
-    x, y = nearest_pixel(res.tracks_2d[np.arange(N), q], W, H)
+    T, N, q = res.depth.shape[0], res.num_tracks, res.query_frame
+    x, y = query_pixels(res)
     static = ~gt["dynamic"][q, y, x]
     masked = load_masks(scene / "input" / "masks", T)[q, y, x]
     given = load_tracks(scene / "tracks.npz", T)  # the 2D tracker's own visibility

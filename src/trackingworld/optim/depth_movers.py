@@ -26,7 +26,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from trackingworld.geometry import invert_pose
+from trackingworld.geometry import invert_pose, nearest_pixel
 
 
 def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames: int, shape: tuple[int, int],
@@ -66,13 +66,22 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
     (x right, y down) and the log discrepancy ``e [M]`` (fitted camera depth over the prior, the frame's field
     removed). ``thresh``: log units (0.05 = 5%); ``window_px``: side of the neighbourhood's square (pixels of the
     image ``shape`` (h, w)). A track with no observation is never flagged."""
-    out = np.zeros(n_tracks, bool)
+    return depth_movers_at(track, frame, uv, e, n_tracks, n_frames, shape, [thresh], window_px)[0]
+
+
+def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
+                    n_frames: int, shape: tuple[int, int], thresholds, window_px: float = 20.0) -> list:
+    """:func:`depth_movers` at each of ``thresholds`` (log units): one [n_tracks] bool per threshold, the cells
+    and the windows' counts of observations made once for all of them."""
+    out = [np.zeros(n_tracks, bool) for _ in thresholds]
     if not len(track):
         return out
     n_obs = np.bincount(track, minlength=n_tracks)
-    for frac in _window_fractions(frame, uv, [e >= thresh, e <= -thresh], n_frames, shape, window_px):
+    flags = [f for th in thresholds for f in (e >= th, e <= -th)]
+    fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px)
+    for i, frac in enumerate(fracs):
         won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
-        out |= won * 2 > n_obs
+        out[i // 2] |= won * 2 > n_obs
     return out
 
 
@@ -82,8 +91,7 @@ def prior_spread(t: np.ndarray, uv: np.ndarray, prior: np.ndarray, radius: int) 
     ``radius`` px (a square) over its value at the pixel (far >= 0 >= near). Per frame, a grey dilation and
     erosion of the log prior (OpenCV)."""
     _, h, w = prior.shape
-    x = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
-    y = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
+    x, y = nearest_pixel(uv, w, h)
     kernel = np.ones((2 * radius + 1,) * 2, np.uint8)
     far, near = np.zeros(len(t)), np.zeros(len(t))
     bounds = np.searchsorted(t, np.arange(len(prior) + 1))

@@ -13,7 +13,13 @@ from scipy.spatial import cKDTree
 from trackingworld.config import DC_TARGETS, OptimConfig
 from trackingworld.geometry import invert_pose, transform
 from trackingworld.optim.densify import propagate_ratio, thinned_observations
-from trackingworld.optim.depth_movers import blur_tolerant, depth_movers, less_fields, log_depth_ratios, prior_spread
+from trackingworld.optim.depth_movers import (
+    blur_tolerant,
+    depth_movers_at,
+    less_fields,
+    log_depth_ratios,
+    prior_spread,
+)
 from trackingworld.optim.edge_prior import inner_prior
 from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.static_tests import spread_observations
@@ -173,8 +179,11 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
         keep, e = less_fields(uv_obs, t, e_raw, fields)
         if spread is not None:
             e = blur_tolerant(e, spread[0][keep], spread[1][keep])
-        test = (k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape)
-        movers = depth_movers(*test, cfg.depth_mover_log, cfg.depth_mover_window_px)
-        if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # for the next round's fields
-            left_out = depth_movers(*test, cfg.depth_mover_log * cfg.depth_mover_suspect, cfg.depth_mover_window_px)
+        thresholds = [cfg.depth_mover_log]
+        if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # the suspects, for the next round's fields
+            thresholds.append(cfg.depth_mover_log * cfg.depth_mover_suspect)
+        movers, *suspects = depth_movers_at(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
+                                            thresholds, cfg.depth_mover_window_px)
+        if suspects:
+            left_out = suspects[0]
     return movers, thinned
