@@ -14,6 +14,8 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	# CPU wheel pinned; if a CUDA build of torch is already in the venv, pip keeps it (same version range).
 	$(BIN)/python -c "import torch" 2>/dev/null || $(BIN)/pip install -q torch==$(TORCH_VERSION)
+	# the plain OpenCV wheels share the cv2 folder with the contrib build the package needs: removed first
+	$(BIN)/pip uninstall -y -q opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e ".[dev]"
 	touch $@
 

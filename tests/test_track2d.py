@@ -401,6 +401,54 @@ def test_smaller_dis_patches_leak_less_of_a_movers_flow_into_the_background():
         assert leak[(4, 2)] < 0.75 * leak[(8, 3)]
 
 
+def _moving_square(seed: int, H: int = 96, W: int = 128):
+    """Two RGB frames: a textured square of its own colour moving 3 px right over a static textured background;
+    and the mask of the static background just behind and above it."""
+    rng = np.random.default_rng(seed)
+    bg, fg = (cv2.resize(rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32), (w, h),
+                         interpolation=cv2.INTER_CUBIC) for h, w in ((H, W), (40, 40)))
+    frames = []
+    for t in range(2):
+        f = np.stack([bg, bg, bg], -1) * [0.3, 0.6, 0.9]
+        f[28:68, 40 + 3 * t:80 + 3 * t] = fg[..., None] * [0.9, 0.5, 0.2]
+        frames.append(np.clip(cv2.GaussianBlur(f, (0, 0), 0.7), 0, 255).astype(np.uint8))
+    beside = np.zeros((H, W), bool)
+    beside[28:68, 32:39] = True
+    beside[20:27, 40:80] = True
+    return frames, beside
+
+
+def test_the_weighted_median_puts_the_motion_boundary_back_on_the_colour_edge():
+    from trackingworld.tracking2d.flow_tracker import pairwise_flows
+
+    for seed in range(3):
+        frames, beside = _moving_square(seed)
+        gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+        plain = pairwise_flows(gray)[0][0]
+        for gate, most in ((0.0, 0.5), (0.5, 0.85)):  # less leak behind the square (gated: only the larger leaks)
+            med = pairwise_flows(gray, guide=frames, median=(5, 10.0, gate))[0][0]
+            assert np.abs(med[beside]).mean() < most * np.abs(plain[beside]).mean()
+            assert np.abs(med[32:64, 50:75, 0] - 3).mean() < 0.05  # the square itself still moves by 3 px
+        # gated, the median leaves alone the flow it barely changes
+        gated = pairwise_flows(gray, guide=frames, median=(5, 10.0, 0.5))[0][0]
+        same = np.all(gated == plain, axis=-1)
+        assert same.mean() > 0.5 and not same[beside].all()
+        # the same frames, the same flow (the filter's colour clustering starts from a seeded RNG)
+        cv2.setRNGSeed(seed + 7)
+        assert np.array_equal(pairwise_flows(gray, guide=frames, median=(5, 10.0, 0.5))[0][0], gated)
+    with pytest.raises(ValueError, match="colour frames"):
+        pairwise_flows(gray, median=(5, 10.0, 0.5))
+
+
+def test_the_weighted_median_says_what_to_install_without_opencv_contrib(monkeypatch):
+    from trackingworld.tracking2d import flow_tracker
+
+    frames, _ = _moving_square(0)
+    monkeypatch.delattr(flow_tracker.cv2, "ximgproc", raising=False)
+    with pytest.raises(RuntimeError, match="opencv-contrib-python-headless"):
+        flow_tracker.weighted_median(np.zeros(frames[0].shape[:2] + (2,), np.float32), frames[0], 5, 10.0)
+
+
 def test_flow_patch_option_reaches_the_tracker(capsys):
     from trackingworld.cli.main import _track_config, build_parser
     from trackingworld.pipeline.tracks import make_tracker
@@ -410,6 +458,8 @@ def test_flow_patch_option_reaches_the_tracker(capsys):
     tracker = make_tracker(cfg, verbose=False)
     assert (tracker.config.patch_size, tracker.config.patch_stride) == (6, 3)
     assert _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz"])).flow_patch == (4, 2)
+    cfg = _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-median", "3"]))
+    assert make_tracker(cfg, verbose=False).config.median_radius == 3
     with pytest.raises(SystemExit):
         build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-patch", "4"])
     assert "SIZE,STRIDE" in capsys.readouterr().err

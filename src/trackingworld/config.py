@@ -64,6 +64,10 @@ class Track2DConfig:
     flow_patch: tuple[int, int] = (4, 2)  # the fine preset's DIS patch side and stride (px); (8, 3) before
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
     flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
+    # each pairwise flow through a colour-guided weighted median of this radius (px; 0: off): motion boundaries
+    # back on the colour edges (tracking2d.flow_tracker.weighted_median); static kept +0.6, world accuracy -0.15
+    # and 1.8x the tracking time on twenty scenes, so off by default (docs/tracking2d.md, stop 44)
+    flow_median: int = 0
 
 
 @dataclass

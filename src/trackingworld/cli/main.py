@@ -180,6 +180,9 @@ def _track_args(p) -> None:
                    help="a step near a motion boundary that leaves the median step of the neighbours that moved like "
                         "the point by more than PX + 10%% is not observed: a point dragged along by an object passing "
                         "it (0: off)")
+    g.add_argument("--flow-median", type=int, default=Track2DConfig().flow_median, metavar="PX",
+                   help="each optical flow through a weighted median of this radius guided by the frame's colours, "
+                        "which puts motion boundaries back on colour edges (0: off; needs opencv-contrib)")
 
 
 def _track_config(a):
@@ -190,7 +193,8 @@ def _track_config(a):
         grid_stride=a.grid_stride,
         query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
         min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset,
-        flow_patch=a.flow_patch, flow_skip_stride=a.flow_skip_stride, flow_drag_px=a.flow_drag_px)
+        flow_patch=a.flow_patch, flow_skip_stride=a.flow_skip_stride, flow_drag_px=a.flow_drag_px,
+        flow_median=a.flow_median)
 
 
 def cmd_track2d(a) -> int:
