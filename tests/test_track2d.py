@@ -376,46 +376,37 @@ def test_a_step_that_leaves_its_like_moving_neighbours_is_dragged():
     assert not tracker._dragged(p, va, step, every, ask, 8, 24.0).any()
 
 
+def _moving_square(seed: int, colour: bool = True, H: int = 96, W: int = 128):
+    """Two frames (RGB with ``colour``: the square tinted apart from the background; else grey [H,W]): a textured
+    square moving 3 px right over a static textured background; and the mask of the static background just behind
+    and above it."""
+    rng = np.random.default_rng(seed)
+    bg, fg = (cv2.resize(rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32), (w, h),
+                         interpolation=cv2.INTER_CUBIC) for h, w in ((H, W), (40, 40)))
+    if colour:
+        bg, fg = np.stack([bg, bg, bg], -1) * [0.3, 0.6, 0.9], fg[..., None] * [0.9, 0.5, 0.2]
+    frames = []
+    for t in range(2):
+        f = bg.copy()
+        f[28:68, 40 + 3 * t:80 + 3 * t] = fg
+        frames.append(np.clip(cv2.GaussianBlur(f, (0, 0), 0.7), 0, 255).astype(np.uint8))
+    beside = np.zeros((H, W), bool)
+    beside[28:68, 32:39] = True
+    beside[20:27, 40:80] = True
+    return frames, beside
+
+
 def test_smaller_dis_patches_leak_less_of_a_movers_flow_into_the_background():
     from trackingworld.tracking2d.flow_tracker import pairwise_flows
 
-    H, W = 96, 128
     for seed in range(3):
-        rng = np.random.default_rng(seed)
-
-        bg, fg = (cv2.resize(rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32), (w, h),
-                             interpolation=cv2.INTER_CUBIC) for h, w in ((H, W), (40, 40)))
-        frames = []
-        for t in range(2):  # a textured square moving 3 px to the right over a static textured background
-            f = bg.copy()
-            f[28:68, 40 + 3 * t:80 + 3 * t] = fg
-            frames.append(np.clip(cv2.GaussianBlur(f, (0, 0), 0.7), 0, 255).astype(np.uint8))
-        beside = np.zeros((H, W), bool)  # static background just behind and above the square
-        beside[28:68, 32:39] = True
-        beside[20:27, 40:80] = True
+        frames, beside = _moving_square(seed, colour=False)
         leak = {}
         for patch in [(8, 3), (4, 2)]:
             flow = pairwise_flows(frames, patch=patch)[0][0]
             leak[patch] = np.abs(flow[beside]).mean()
             assert np.abs(flow[32:64, 50:75, 0] - 3).mean() < 0.05  # the square itself moves by 3 px either way
         assert leak[(4, 2)] < 0.75 * leak[(8, 3)]
-
-
-def _moving_square(seed: int, H: int = 96, W: int = 128):
-    """Two RGB frames: a textured square of its own colour moving 3 px right over a static textured background;
-    and the mask of the static background just behind and above it."""
-    rng = np.random.default_rng(seed)
-    bg, fg = (cv2.resize(rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32), (w, h),
-                         interpolation=cv2.INTER_CUBIC) for h, w in ((H, W), (40, 40)))
-    frames = []
-    for t in range(2):
-        f = np.stack([bg, bg, bg], -1) * [0.3, 0.6, 0.9]
-        f[28:68, 40 + 3 * t:80 + 3 * t] = fg[..., None] * [0.9, 0.5, 0.2]
-        frames.append(np.clip(cv2.GaussianBlur(f, (0, 0), 0.7), 0, 255).astype(np.uint8))
-    beside = np.zeros((H, W), bool)
-    beside[28:68, 32:39] = True
-    beside[20:27, 40:80] = True
-    return frames, beside
 
 
 def test_the_weighted_median_puts_the_motion_boundary_back_on_the_colour_edge():
@@ -440,13 +431,21 @@ def test_the_weighted_median_puts_the_motion_boundary_back_on_the_colour_edge():
         pairwise_flows(gray, median=(5, 10.0, 0.5))
 
 
-def test_the_weighted_median_says_what_to_install_without_opencv_contrib(monkeypatch):
+def test_the_weighted_median_says_what_to_install_without_opencv_contrib(monkeypatch, tiny_scene, tmp_path, capsys):
+    from trackingworld.cli.main import main
+    from trackingworld.errors import InputError
     from trackingworld.tracking2d import flow_tracker
 
     frames, _ = _moving_square(0)
     monkeypatch.delattr(flow_tracker.cv2, "ximgproc", raising=False)
-    with pytest.raises(RuntimeError, match="opencv-contrib-python-headless"):
+    with pytest.raises(InputError, match="opencv-contrib-python-headless"):
         flow_tracker.weighted_median(np.zeros(frames[0].shape[:2] + (2,), np.float32), frames[0], 5, 10.0)
+    # on the command line: one line, no traceback, no output file
+    out = tmp_path / "t.npz"
+    assert main(["track2d", str(tiny_scene / "input" / "frames"), "--out", str(out), "--quiet", "--max-frames", "3",
+                 "--flow-median", "5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "opencv-contrib-python-headless" in err and not out.exists()
 
 
 def test_flow_patch_option_reaches_the_tracker(capsys):

@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from trackingworld.errors import InputError
 from trackingworld.geometry import nearest_pixel
 from trackingworld.progress import Progress
 from trackingworld.tracking2d.base import TrackResult
@@ -121,7 +122,7 @@ def weighted_median(flow: np.ndarray, guide: np.ndarray, radius: int, sigma: flo
     The filter clusters the guide's colours from a random start (OpenCV's RNG): seeded here, so that the same
     frames give the same flow (unseeded, two calls differ by up to 6 px on a tenth of the pixels)."""
     if not hasattr(cv2, "ximgproc"):
-        raise RuntimeError("the flow's weighted median needs OpenCV's contrib modules (cv2.ximgproc): pip install "
+        raise InputError("the flow's weighted median needs OpenCV's contrib modules (cv2.ximgproc): pip install "
                            "opencv-contrib-python-headless in place of opencv-python-headless, or pass "
                            "--flow-median 0")
     chans = []
