@@ -10,6 +10,7 @@ from pathlib import Path
 
 from trackingworld.config import InputConfig, RunConfig
 from trackingworld.eval.evaluate import evaluate_to_file, format_table
+from trackingworld.memory import reuse_freed_memory
 from trackingworld.pipeline.run import DEFAULT_METHOD, METHODS, run
 from trackingworld.synth import render_and_write
 from trackingworld.viz.render import render as render_result
@@ -21,6 +22,7 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="default")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
+    reuse_freed_memory()  # as the CLI (trackingworld.memory)
     out = Path(a.out)
     scene = out / "scene"
     t0 = time.perf_counter()

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from trackingworld.errors import InputError
+from trackingworld.memory import reuse_freed_memory
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -459,6 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     if not a.cmd:
         p.print_help()
         return 2
+    reuse_freed_memory()  # large temporary arrays reused rather than paged in again (trackingworld.memory)
     try:
         return {"synth": cmd_synth, "run": cmd_run, "eval": cmd_eval, "track2d": cmd_track2d, "view": cmd_view,
                 "render": cmd_render, "export": cmd_export}[a.cmd](a)

@@ -118,10 +118,13 @@ def weighted_median(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``[n,d]``: per row and coordinate, the weighted median of ``v [n,k,d]`` under the weights ``w [n,k]``
     (>= 0, a positive sum per row): the smallest value whose cumulative weight, in sorted order, reaches half of
     its row's total."""
-    order = np.argsort(v, axis=1)
-    cum = np.cumsum(np.take_along_axis(np.broadcast_to(w[..., None], v.shape), order, 1), axis=1)
-    pick = (cum >= 0.5 * cum[:, -1:]).argmax(1)  # [n,d]: the rank of the median
-    return np.take_along_axis(np.take_along_axis(v, order, 1), pick[:, None], 1)[:, 0]
+    n, k, d = v.shape
+    rows = v.transpose(0, 2, 1).reshape(n * d, k)  # one row per (track, coordinate): sorted along its k values
+    order = np.argsort(rows, axis=1)
+    r = np.arange(n * d)
+    cum = np.cumsum(w[r[:, None] // d, order], axis=1)
+    pick = (cum >= 0.5 * cum[:, -1:]).argmax(1)  # the rank of the median
+    return rows[r, order[r, pick]].reshape(n, d)
 
 
 def donor_step(at_s: np.ndarray, at_t: np.ndarray, donors: np.ndarray, i: np.ndarray, k: int, reach: float,
@@ -182,8 +185,11 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     gaps = searched_gaps(T)
     searched = np.zeros(T, bool)
     searched[gaps] = True
-    step = np.zeros((N, T, 3), np.float32)  # the donors' step at the searched hidden frames
-    done = np.zeros((N, T), bool)  # ... where there were donors
+    # frames first (each pair's tracks are written along a contiguous row): the donors' step at the searched hidden
+    # frames, where there were donors, and what is added to the held positions
+    step = np.zeros((T, N, 3), np.float32)
+    done = np.zeros((T, N), bool)
+    add = np.zeros((T, N, 3), np.float32)
     pairs = []  # (s, t, the tracks hidden at t with anchor s)
     for t in range(T):
         hidden = np.flatnonzero(~vis_t[t] & seen)
@@ -205,9 +211,8 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     with ThreadPoolExecutor(carry_threads() if threads is None else threads) as pool:
         for (_, t, i), st in zip(pairs, pool.map(pair_step, pairs), strict=True):
             if st is not None:
-                step[i, t] = st
-                done[i, t] = True
-                out[i, t] += st.astype(out.dtype, copy=False)
+                step[t, i] = st
+                done[t, i] = True
     # the hidden frames between searched ones: linear in the gap between the searched frames around them
     below = np.maximum.accumulate(np.where(searched, np.arange(T), 0))  # [T] largest searched gap <= g
     above = np.minimum.accumulate(np.where(searched, np.arange(T), T)[::-1])[::-1]  # smallest >= g
@@ -222,11 +227,13 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
         g1 = below[g]
         t1, t2 = s + sign * g1, np.clip(s + sign * above[g], 0, T - 1)  # past the video's end: its last frame
         g2 = np.abs(t2 - s)
-        ok1 = (g1 > 0) & done[hi, t1]
-        ok2 = (src[hi, t2] == s) & done[hi, t2]  # done: hidden there and searched
+        ok1 = (g1 > 0) & done[t1, hi]
+        ok2 = (src[hi, t2] == s) & done[t2, hi]  # done: hidden there and searched
         frac = ((g - g1) / np.maximum(g2 - g1, 1))[:, None]
-        s1, s2 = step[hi, t1], step[hi, t2]
+        s1, s2 = step[t1, hi], step[t2, hi]
         mid = np.where((ok1 & ok2)[:, None], s1 + frac * (s2 - s1), np.where(ok1[:, None], s1, s2))
         use = ok1 | ok2
-        out[hi[use], ht[use]] += mid[use].astype(out.dtype, copy=False)
+        add[ht[use], hi[use]] = mid[use]
+    add[done] = step[done]
+    out += add.transpose(1, 0, 2).astype(out.dtype, copy=False)
     return out

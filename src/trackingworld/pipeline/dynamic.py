@@ -43,8 +43,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     # every other visible observation of a dynamic track follows the optimised ones
     follow = vis[dyn].copy()
     follow[ctrl] &= ~obs
-    if follow.any():
-        xyz[dyn] = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k)
+    moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k) if follow.any() \
+        else xyz[dyn]
     # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
     if cfg.carry_k > 0:
         # the image motion's weight in the donors' search: the distance two tracks drift apart in
@@ -52,10 +52,10 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
         few = dyn[:: max(1, len(dyn) // 4000)]
         z = D3[few][vis[few]]
         scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
-        xyz[dyn] = carry_hidden(xyz[dyn], vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale,
+        xyz[dyn] = carry_hidden(moved, vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale,
                                 stat=cfg.carry_stat)
     else:
-        xyz[dyn] = hold_invisible(xyz[dyn], vis[dyn])
+        xyz[dyn] = hold_invisible(moved, vis[dyn])
     info["stage3_controls"] = int(len(ctrl))
     info["stage3_observations"] = int(obs.sum())
 
