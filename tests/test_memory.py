@@ -35,3 +35,39 @@ def test_freed_large_arrays_are_reused_without_new_page_faults():
         pytest.skip("not glibc")
     assert faults_default > 0  # glibc maps a block this large afresh each time
     assert faults < faults_default / 2
+
+
+def test_the_peak_estimate_warns_only_past_the_available_memory():
+    from trackingworld.memory import available_bytes, estimate_peak_bytes, guess_tracks, memory_warning
+
+    # the run measured at 120 frames (257,283 tracks, 2.44 GB peak RSS) is not underestimated
+    assert 2.44e9 <= estimate_peak_bytes(257_283, 120) <= 1.4 * 2.44e9
+    assert estimate_peak_bytes(2 * 257_283, 120) > estimate_peak_bytes(257_283, 120)
+    assert memory_warning(257_283, 120, available=8e9) is None
+    msg = memory_warning(257_283, 120, available=1e9)
+    assert "257,283 tracks x 120 frames" in msg and "1.0 GB is available" in msg and "--resize" in msg
+    assert "\n" not in msg
+    assert memory_warning(guess_tracks(480, 854, 300), 300, available=24e9, guessed=True).startswith("about ")
+    if sys.platform.startswith("linux"):
+        assert available_bytes() > 0
+
+
+def test_a_run_too_large_for_the_memory_says_so_and_still_runs(tiny_scene, tmp_path, capsys, monkeypatch):
+    from trackingworld import load_result, memory
+    from trackingworld.cli.main import main
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1e6)  # a machine with 1 MB left
+    inp = tiny_scene / "input"
+    out = tmp_path / "res"
+    assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                 "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"),
+                 "--method", "baseline"]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if line.startswith("[run] warning:")]
+    assert len(warned) == 2 and warned[0].startswith("[run] warning: about ")  # before and after the 2D tracks
+    n = load_result(out).tracks_2d.shape[0]
+    assert f"{n:,} tracks x 10 frames" in warned[1]
+    with pytest.warns(RuntimeWarning, match="tracks x 10 frames need about"):  # quiet: through warnings
+        assert main(["run", str(inp / "frames"), "--out", str(tmp_path / "quiet"), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"),
+                     "--method", "baseline", "--quiet"]) == 0
+    assert "[run] warning" not in capsys.readouterr().err

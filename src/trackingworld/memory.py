@@ -1,4 +1,5 @@
-"""The allocator setting of the command line and the benchmarks: memory the process frees is kept for reuse.
+"""Memory: the allocator setting of the command line and the benchmarks (memory the process frees is kept for
+reuse), and the estimate of a run's peak memory that warns before a video too large for this machine.
 
 The stages make and drop many large temporary arrays (``[N,T]`` and ``[N,T,3]``: 120 frames at 320x240 hold
 257k tracks, 120-370 MB each). glibc's malloc serves every block of 32 MB or more with a fresh ``mmap`` and hands
@@ -9,7 +10,17 @@ tenth of the optimisation's time, at 30 frames (arrays below the threshold, reus
 optimisation 34.9 -> 31.3 s; the 30-frame windows 7.1 -> 6.9 s (``docs/results.md``, stop 45).
 
 A process-wide setting, so the library does not make it on import: ``trackingworld`` (the CLI) and the benchmarks
-call it. ``TRACKINGWORLD_MALLOC=0`` in the environment leaves malloc as it is; it does nothing off glibc."""
+call it. ``TRACKINGWORLD_MALLOC=0`` in the environment leaves malloc as it is; it does nothing off glibc.
+
+The estimate (:func:`estimate_peak_bytes`): a run holds a few arrays of every track at every frame, so its peak
+grows with tracks x frames, and the dense tracks grow with the frames too (the pixels no track covers start new
+ones). Peak RSS of ``trackingworld run`` measured at stop 45 (``/usr/bin/time -v``, the `default` scene with its
+priors given): 0.86 / 1.38 / 2.44 GB for 124,656 / 164,919 / 257,283 tracks over 30 / 60 / 120 frames at 320x240
+(tracks given); 2.56-2.66 GB for 747,489 tracks over 30 frames at 854x480 (with the 2D tracking). BASE_BYTES +
+BYTES_PER_ENTRY x tracks x frames lies 4% below to 30% above those. Before the 2D tracking the tracks are
+guessed from the pixels and frames (``TRACKS_PER_PIXEL_FRAME``: 112k-125k / 160-165k / 257k tracks at 30 / 60 /
+120 frames of 320x240, 747k at 30 frames of 854x480; the guess 123k / 169k / 261k / 656k); a scene with more
+motion or occlusion starts more tracks."""
 
 from __future__ import annotations
 
@@ -17,6 +28,7 @@ import ctypes
 import ctypes.util
 import os
 import sys
+from pathlib import Path
 
 M_TRIM_THRESHOLD = -1  # glibc's mallopt parameters (malloc.h)
 M_MMAP_MAX = -4
@@ -36,3 +48,54 @@ def reuse_freed_memory() -> bool:
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     return bool(mallopt(M_MMAP_MAX, 0)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
+
+
+BASE_BYTES = 0.7e9  # the interpreter, torch, the frames and priors of a short video (module docstring)
+BYTES_PER_ENTRY = 80.0  # per track per frame, at the run's peak
+TRACKS_PER_PIXEL_FRAME = 0.02  # new tracks per pixel per frame, beyond one per pixel of the first frame
+
+
+def estimate_peak_bytes(n_tracks: int, n_frames: int) -> float:
+    """Bytes: the estimated peak memory of ``trackingworld run`` on ``n_tracks`` dense tracks over ``n_frames``
+    frames (module docstring)."""
+    return BASE_BYTES + BYTES_PER_ENTRY * float(n_tracks) * float(n_frames)
+
+
+def guess_tracks(height: int, width: int, n_frames: int) -> int:
+    """The dense tracks a video of ``n_frames`` frames of ``height`` x ``width`` px is likely to hold (module
+    docstring): a guess, before the 2D tracking."""
+    return int(height * width * (1 + TRACKS_PER_PIXEL_FRAME * n_frames))
+
+
+def available_bytes() -> float | None:
+    """Bytes this process can still take: the kernel's MemAvailable, or less under a cgroup (v2) memory limit;
+    None where neither is known (not Linux)."""
+    out = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                out = float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            left = float(limit) - float(Path("/sys/fs/cgroup/memory.current").read_text())
+            out = left if out is None else min(out, left)
+    except (OSError, ValueError):
+        pass
+    return out
+
+
+def memory_warning(n_tracks: int, n_frames: int, available: float | None = None, guessed: bool = False
+                   ) -> str | None:
+    """A one-line warning when the estimated peak of a run on ``n_tracks`` tracks (``guessed``: before the 2D
+    tracking) over ``n_frames`` frames exceeds ``available`` bytes (None: :func:`available_bytes`); None when it
+    fits or the available memory is unknown."""
+    available = available_bytes() if available is None else available
+    need = estimate_peak_bytes(n_tracks, n_frames)
+    if available is None or need <= available:
+        return None
+    return (f"{'about ' if guessed else ''}{n_tracks:,} tracks x {n_frames} frames need about {need / 1e9:.1f} GB "
+            f"at the peak, {available / 1e9:.1f} GB is available: the run may be killed for memory; fewer frames "
+            f"(--max-frames, --frame-stride) or pixels (--resize) make it smaller")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from trackingworld.errors import InputError
 from trackingworld.io.atomic import write_json
 from trackingworld.io.cache import cached
 from trackingworld.io.result import CONFIG_FILE, Result, save_result
+from trackingworld.memory import guess_tracks, memory_warning
 from trackingworld.pipeline.baseline import run_baseline
 from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import track_video
@@ -42,6 +44,16 @@ def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: d
     return TrackResult(z["tracks"], z["visible"], z["confidence"].astype(np.float32), z["queries"])
 
 
+def _warn(message: str | None, verbose: bool) -> None:
+    """A warning on stderr (verbose) or through :mod:`warnings`."""
+    if message is None:
+        return
+    if verbose:
+        print(f"[run] warning: {message}", file=sys.stderr, flush=True)
+    else:
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
 def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     out_dir = Path(out_dir)
     if cfg.method not in METHODS:
@@ -60,7 +72,11 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     inp = load_inputs(cfg.inputs, verbose)
     timings["load_inputs"] = time.perf_counter() - t0
     cache_dir = out_dir / PRIORS_DIR if cfg.inputs.cache else None
+    T, H, W = inp.frames.shape[:3]
+    if cfg.track2d.tracker != "file":  # a guess of the tracks, before the minutes of 2D tracking
+        _warn(memory_warning(guess_tracks(H, W, T), T, guessed=True), verbose)
     tr = dense_tracks(inp, cfg, cache_dir, timings, verbose)
+    _warn(memory_warning(tr.tracks.shape[0], T), verbose)
     t1 = time.perf_counter()
     inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose)
     timings["priors"] = time.perf_counter() - t1
