@@ -7,7 +7,7 @@ it back on ``free``, so each such array is paged in, and zeroed by the kernel, a
 tenth of the optimisation's time, at 30 frames (arrays below the threshold, reused from the heap) next to none.
 :func:`reuse_freed_memory` tells malloc to serve large blocks from its heap as well and to keep freed memory there
 (``mallopt``: no ``mmap`` blocks, a 2 GB trim threshold). The 120-frame video of ``benchmarks/bench_scaling.py``:
-optimisation 34.9 -> 31.3 s; the 30-frame windows 7.1 -> 6.9 s (``docs/results.md``, stop 45).
+optimisation 34.7 -> 30.8 s; its 30-frame windows 6.8 -> 6.6 s (``docs/results.md``, stop 45).
 
 A process-wide setting, so the library does not make it on import: ``trackingworld`` (the CLI) and the benchmarks
 call it. ``TRACKINGWORLD_MALLOC=0`` in the environment leaves malloc as it is; it does nothing off glibc.
