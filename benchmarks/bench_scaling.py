@@ -3,6 +3,7 @@ frames, not 16x), on synthetic scenes with the priors given, so that every lengt
 
     .venv/bin/python benchmarks/bench_scaling.py      # writes benchmarks/results/scaling_default.md
     python benchmarks/bench_scaling.py --device cuda  # optimisation on the GPU: scaling_default_cuda.md
+    .venv/bin/python benchmarks/bench_scaling.py --repeat 3  # each window's fastest of three passes
 
 One scene is rendered at the longest length; every shorter length runs on each of the non-overlapping windows
 of that many frames it contains (30 frames of 120: frames 0-29, 30-59, 60-89, 90-119), so that the comparison
@@ -66,29 +67,38 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default="cpu", help="where the optimisation runs (cpu | cuda | cuda:N)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="passes over every window; each window's fastest is kept (runs on a busy machine vary)")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_scaling_", a.keep)
     full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False)
     Tmax = max(a.frames)
-    results: dict[int, list[dict]] = {}
-    for T in sorted(a.frames):
-        results[T] = []
-        for start in range(0, Tmax - T + 1, T):
-            scene = cut_scene(full, work / f"scene{T}_{start}", start, T)
+    windows = [(T, start) for T in sorted(a.frames) for start in range(0, Tmax - T + 1, T)]
+    runs: dict[tuple[int, int], dict] = {}  # the fastest pass of each window
+    for rep in range(a.repeat):
+        for T, start in windows:
+            scene = work / f"scene{T}_{start}"
+            tracks = work / f"tracks{T}_{start}.npz"
+            if rep == 0:
+                cut_scene(full, scene, start, T)
+                tracks_file(scene, tracks)
             inp = scene / "input"
-            tracks = tracks_file(scene, work / f"tracks{T}_{start}.npz")
             cfg = RunConfig(device=a.device,
                             inputs=InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"),
                                                masks=str(inp / "masks"), intrinsics=str(inp / "intrinsics.txt")),
                             track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)),
                             optim=OptimConfig(verbose=False))
             out = work / f"run{T}_{start}"
-            r = run_and_evaluate(cfg, out, scene, f"{T} frames from frame {start}")
+            r = run_and_evaluate(cfg, out, scene, f"{T} frames from frame {start}, pass {rep + 1}")
             r["optim"] = json.loads((out / "optim.json").read_text())
             r["observations"] = int(np.load(out / "result.npz")["visible"].sum())
             r["start"] = start
             r["optimisation_s"] = sum(r["timings"].get(s, 0.0) for s in OPT_STAGES)
-            results[T].append(r)
+            if (T, start) not in runs or r["optimisation_s"] < runs[T, start]["optimisation_s"]:
+                runs[T, start] = r
+    results: dict[int, list[dict]] = {}
+    for T, start in windows:
+        results.setdefault(T, []).append(runs[T, start])
 
     def mean(rs, f):
         """Mean of ``f`` over the windows where it is defined (a window may hold no ground-truth query track)."""
@@ -99,7 +109,7 @@ def main(argv=None) -> int:
     def world(r):
         return r["metrics"]["world_3d"]["all"].get("acc_avg")
 
-    dev_arg = "" if a.device == "cpu" else f" --device {a.device}"
+    dev_arg = ("" if a.device == "cpu" else f" --device {a.device}") + (f" --repeat {a.repeat}" if a.repeat > 1 else "")
     T0 = min(results)
     base = mean(results[T0], lambda r: r["optimisation_s"])
     lines = md_table_start(
@@ -112,7 +122,9 @@ def main(argv=None) -> int:
     lines[1:1] = ["", f"Means over the non-overlapping windows of each length in one {Tmax}-frame video; "
                   f"'x of the shortest': the mean optimisation time over that of the {T0}-frame windows (linear "
                   f"cost: {Tmax // T0}x at {Tmax} frames); 'us per observation': optimisation time over the visible "
-                  f"observations of the result (the data the stages work on), constant when the cost is linear in it."]
+                  f"observations of the result (the data the stages work on), constant when the cost is linear in it." +
+                  (f" Each window's fastest of {a.repeat} passes over all of them (the stages' times are that "
+                   f"pass's)." if a.repeat > 1 else "")]
     for T, rs in results.items():
         opt = mean(rs, lambda r: r["optimisation_s"])
         per_obs = mean(rs, lambda r: 1e6 * r["optimisation_s"] / max(r["observations"], 1))
