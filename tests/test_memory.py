@@ -71,3 +71,27 @@ def test_a_run_too_large_for_the_memory_says_so_and_still_runs(tiny_scene, tmp_p
                      "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"),
                      "--method", "baseline", "--quiet"]) == 0
     assert "[run] warning" not in capsys.readouterr().err
+
+
+def test_the_available_memory_is_the_smaller_of_the_kernel_and_a_container_limit(tmp_path):
+    from trackingworld.memory import available_bytes
+
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal: 32000000 kB\nMemAvailable: 20000000 kB\n")
+    none = tmp_path / "none"
+    assert available_bytes(meminfo, none) == 20000000 * 1024
+    v2 = tmp_path / "v2"
+    v2.mkdir()
+    (v2 / "memory.max").write_text("8000000000\n")
+    (v2 / "memory.current").write_text("3000000000\n")
+    assert available_bytes(meminfo, v2) == 5e9
+    (v2 / "memory.max").write_text("max\n")
+    assert available_bytes(meminfo, v2) == 20000000 * 1024
+    v1 = tmp_path / "v1" / "memory"
+    v1.mkdir(parents=True)
+    (v1 / "memory.limit_in_bytes").write_text("4000000000\n")
+    (v1 / "memory.usage_in_bytes").write_text("1000000000\n")
+    assert available_bytes(meminfo, v1.parent) == 3e9
+    (v1 / "memory.limit_in_bytes").write_text("9223372036854771712\n")  # v1's "no limit"
+    assert available_bytes(meminfo, v1.parent) == 20000000 * 1024
+    assert available_bytes(tmp_path / "missing", none) is None

@@ -67,23 +67,28 @@ def guess_tracks(height: int, width: int, n_frames: int) -> int:
     return int(height * width * (1 + TRACKS_PER_PIXEL_FRAME * n_frames))
 
 
-def available_bytes() -> float | None:
-    """Bytes this process can still take: the kernel's MemAvailable, or less under a cgroup (v2) memory limit;
-    None where neither is known (not Linux)."""
+def available_bytes(meminfo: str | Path = "/proc/meminfo", cgroup: str | Path = "/sys/fs/cgroup") -> float | None:
+    """Bytes this process can still take: the kernel's MemAvailable (``meminfo``), or less under a container's
+    memory limit (``cgroup``: v2 ``memory.max`` less ``memory.current``, or v1 ``memory/memory.limit_in_bytes``
+    less ``memory/memory.usage_in_bytes``); None where none of them is known (not Linux)."""
     out = None
     try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
+        for line in Path(meminfo).read_text().splitlines():
             if line.startswith("MemAvailable:"):
                 out = float(line.split()[1]) * 1024
     except OSError:
         pass
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit != "max":
-            left = float(limit) - float(Path("/sys/fs/cgroup/memory.current").read_text())
-            out = left if out is None else min(out, left)
-    except (OSError, ValueError):
-        pass
+    cg = Path(cgroup)
+    for limit_file, usage_file in (("memory.max", "memory.current"),
+                                   ("memory/memory.limit_in_bytes", "memory/memory.usage_in_bytes")):
+        try:
+            limit = (cg / limit_file).read_text().strip()
+            if limit == "max" or float(limit) >= 2**60:  # no limit (v1 writes a number near 2^63)
+                continue
+            left = float(limit) - float((cg / usage_file).read_text())
+        except (OSError, ValueError):
+            continue
+        out = left if out is None else min(out, left)
     return out
 
 
