@@ -9,8 +9,12 @@ tenth of the optimisation's time, at 30 frames (arrays below the threshold, reus
 (``mallopt``: no ``mmap`` blocks, a 2 GB trim threshold). The 120-frame video of ``benchmarks/bench_scaling.py``:
 optimisation 34.7 -> 30.8 s; its 30-frame windows 6.8 -> 6.6 s (``docs/results.md``, stop 45).
 
-A process-wide setting, so the library does not make it on import: ``trackingworld`` (the CLI) and the benchmarks
-call it. ``TRACKINGWORLD_MALLOC=0`` in the environment leaves malloc as it is; it does nothing off glibc.
+The price: a freed block is handed back to the system only from the heap's top, so one that a later, larger array
+cannot reuse stays resident. On ``trackingworld run`` that raised the peak by 2-4% (2.38 -> 2.44 GB at 120 frames,
+2.52-2.57 -> 2.56-2.66 GB at 854x480); a worst case in a ``/tmp`` script (6 GB and 2 GB arrays, the 6 GB freed and
+reused in part, then an 8 GB one) peaked at 16.2 GB against 8.2 GB. A process-wide setting, so the library does not
+make it on import: ``trackingworld`` (the CLI) and the benchmarks call it. ``TRACKINGWORLD_MALLOC=0`` in the
+environment leaves malloc as it is; it does nothing off glibc.
 
 The estimate (:func:`estimate_peak_bytes`): a run holds a few arrays of every track at every frame, so its peak
 grows with tracks x frames, and the dense tracks grow with the frames too (the pixels no track covers start new
