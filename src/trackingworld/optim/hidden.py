@@ -185,11 +185,10 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     gaps = searched_gaps(T)
     searched = np.zeros(T, bool)
     searched[gaps] = True
-    # frames first (each pair's tracks are written along a contiguous row): the donors' step at the searched hidden
-    # frames, where there were donors, and what is added to the held positions
+    # frames first (each pair's tracks are written along a contiguous row): the step added to the held positions,
+    # the donors' at the searched hidden frames (where there were donors: done), interpolated between them below
     step = np.zeros((T, N, 3), np.float32)
     done = np.zeros((T, N), bool)
-    add = np.zeros((T, N, 3), np.float32)
     pairs = []  # (s, t, the tracks hidden at t with anchor s)
     for t in range(T):
         hidden = np.flatnonzero(~vis_t[t] & seen)
@@ -233,7 +232,6 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
         s1, s2 = step[t1, hi], step[t2, hi]
         mid = np.where((ok1 & ok2)[:, None], s1 + frac * (s2 - s1), np.where(ok1[:, None], s1, s2))
         use = ok1 | ok2
-        add[ht[use], hi[use]] = mid[use]
-    add[done] = step[done]
-    out += add.transpose(1, 0, 2).astype(out.dtype, copy=False)
+        step[ht[use], hi[use]] = mid[use]  # never a searched frame: those read above stay the donors'
+    out += step.transpose(1, 0, 2).astype(out.dtype, copy=False)
     return out
