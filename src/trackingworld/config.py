@@ -65,8 +65,9 @@ class Track2DConfig:
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
     flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
     # each pairwise flow through a colour-guided weighted median of this radius (px; 0: off): motion boundaries
-    # back on the colour edges (tracking2d.flow_tracker.weighted_median); static kept +0.6, world accuracy -0.15
-    # and 1.8x the tracking time on twenty scenes, so off by default (docs/tracking2d.md, stop 44)
+    # back on the colour edges (tracking2d.flow_tracker.weighted_median); on twenty scenes static kept 94.40 ->
+    # 95.21 but world accuracy 81.54 -> 81.34, at 1.6-1.8x the tracking time, so off by default
+    # (benchmarks/results/scenes_median.md against scenes_depth_movers.md; docs/tracking2d.md, stop 44)
     flow_median: int = 0
 
 
