@@ -244,6 +244,14 @@ class OptimConfig:
     # item 4)
     vote_short: int = 10
     vote_flip_px: float = 1.0
+    # (not in the paper) a dynamic-labelled track is a static point the 2D tracker dragged along with a mover when that
+    # point, lifted at its query pixel's depth (0.96-1.04 x the field-corrected prior), shows its query colour (within
+    # photo_static_grey grey levels, max over RGB, sigma-1 blur) in at least photo_static_frac of the other frames
+    # where it projects outside the masks dilated by 2 px, and there are photo_static_frames of those or more; it
+    # is then that point, its 2D track the point's projection, seen where it matched (optim.photo_static; 0: off)
+    photo_static_grey: float = 12.0
+    photo_static_frac: float = 0.8
+    photo_static_frames: int = 3
     static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.

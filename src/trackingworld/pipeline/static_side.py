@@ -16,6 +16,7 @@ from trackingworld.config import OptimConfig
 from trackingworld.geometry import transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC
+from trackingworld.optim.photo_static import blurred_frames, open_regions, static_hypothesis
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
@@ -203,3 +204,27 @@ def drop_off_point(vis, qf, fits: StaticFits, dynamic, xyz, info: dict) -> np.nd
     vis[still] &= ~off
     info["static_outliers"] = int(off.sum())
     return vis
+
+
+def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dynamic, xyz,
+                 info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(not in the paper) Every dynamic track whose static hypothesis holds in the images (``optim.photo_static``,
+    the depth ``D [N,T]`` at its query frame, ``frames [T,h,w,3]`` uint8, ``masks [T,h,w]``) becomes that static
+    point: ``dynamic`` and ``xyz`` updated in place, its 2D track the point's projection and its visibility the
+    frames that matched. Returns (uv, vis, the tracks changed); uv and vis are copies when any changed."""
+    cand = np.flatnonzero(dynamic)
+    if cfg.photo_static_grey <= 0 or not len(cand):
+        return uv, vis, cand[:0]
+    static, X, pix, seen = static_hypothesis(uv[cand, qf[cand]], D[cand, qf[cand]].astype(np.float64), qf[cand],
+                                             poses, K, blurred_frames(frames), open_regions(masks),
+                                             cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames)
+    idx = cand[static]
+    info["photo_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
+    if not len(idx):
+        return uv, vis, idx
+    uv, vis = uv.copy(), vis.copy()
+    uv[idx], vis[idx] = pix, seen
+    dynamic[idx] = False
+    xyz[idx] = X[static][:, None].astype(xyz.dtype)
+    info["dynamic"] = int(dynamic.sum())
+    return uv, vis, idx

@@ -1,0 +1,131 @@
+"""Dynamic-labelled tracks that are static points the 2D tracker dragged: the static hypothesis checked in the images.
+
+Beside a mover, DIS's flow leaks into the background, and a background point's 2D track is dragged along with the
+mover from its first frames (stop 43's probe: 11% of `default` 2's static tracks lie inside the coarse masks and
+stray more than 2 px from their point, and 43% of those end dynamic). No test on the 2D track can tell it from the
+mover's own tracks: both move with the mover. The images can. The track's query pixel is lifted at its depth
+(the field-corrected prior, a few scales around it), that static point is projected into every other frame, and
+its colour there is compared with its query colour. Only the frames where the projection falls outside the
+(dilated) coarse masks count, and outside them the static hypothesis predicts the point's own background:
+
+- a background point matches its query colour in nearly all of them;
+- a point on a mover does not: once the mover has gone, the projection lands on whatever the background holds.
+
+A track that matches in at least ``frac`` of at least ``min_frames`` such frames is that static point. Its 2D
+track becomes the point's projection and it is visible in the query frame and the frames it matched. Why by hand:
+it is a per-track plane-sweep of one pixel over a handful of depths, a few array operations per frame; no library
+does this one job. Conventions: ``uv [n,2]`` px (x right, y down), poses camera-to-world ``[T,4,4]``, OpenCV axes.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from trackingworld.geometry import invert_pose, nearest_pixel
+from trackingworld.tracking2d.flow_tracker import sample_image
+
+BLUR_SIGMA = 1.0  # px: the colours are compared on frames blurred this much (as the 2D tracker's colour check)
+MASK_MARGIN_PX = 2  # the coarse masks are dilated by this much: frames where the point is in them do not count
+
+
+def blurred_frames(frames: np.ndarray, sigma: float = BLUR_SIGMA) -> np.ndarray:
+    """``frames [T,H,W,3]`` uint8 -> the same blurred by a Gaussian of ``sigma`` px, uint8."""
+    return np.stack([cv2.GaussianBlur(f, (0, 0), sigma) for f in frames])
+
+
+def open_regions(masks: np.ndarray, margin_px: int = MASK_MARGIN_PX) -> np.ndarray:
+    """``[T,H,W]`` bool: where the static hypothesis is tested, outside the coarse ``masks [T,H,W]`` dilated by
+    ``margin_px``."""
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+    return np.stack([cv2.dilate(m.astype(np.uint8), k) == 0 for m in masks])
+
+
+def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndarray, w2c_t: np.ndarray,
+          K: np.ndarray, grey: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World points ``X [n,3]`` seen by one camera (``w2c_t [4,4]``, blurred frame ``blur_t [H,W,3]``, open region
+    ``open_t [H,W]``): (pixels [n,2] float32; tested [n] bool: in front of the camera, in the image and in the open
+    region; matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB)."""
+    H, W = open_t.shape
+    P = X @ w2c_t[:3, :3].T + w2c_t[:3, 3]
+    z = P[:, 2]
+    zs = np.where(z > 1e-9, z, 1.0)
+    uv = np.stack([P[:, 0] / zs * K[0, 0] + K[0, 2], P[:, 1] / zs * K[1, 1] + K[1, 2]], 1).astype(np.float32)
+    tested = (z > 1e-9) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    x, y = nearest_pixel(uv, W, H)
+    tested &= open_t[y, x]
+    idx = np.flatnonzero(tested)
+    matched = np.zeros(len(X), bool)
+    matched[idx] = np.abs(sample_image(blur_t, uv[idx]).astype(np.float32) - colour[idx]).max(1) <= grey
+    return uv, tested, matched
+
+
+def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, open_: np.ndarray,
+           w2c: np.ndarray, K: np.ndarray, grey: float) -> tuple[np.ndarray, np.ndarray]:
+    """(frames tested [n], frames matched [n]) of the static points ``X [n,3]`` (query frames ``qf [n]``, query
+    colours ``colour [n,3]`` float32) over the frames other than the query frame (:func:`_look`)."""
+    tested = np.zeros(len(X), np.int32)
+    matched = np.zeros(len(X), np.int32)
+    for t in range(len(open_)):
+        _, ok, same = _look(X, colour, blur[t], open_[t], w2c[t], K, grey)
+        other = qf != t
+        tested += ok & other
+        matched += same & other
+    return tested, matched
+
+
+def query_colours(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndarray:
+    """``[n,3]`` float32: the blurred frames' ``blur [T,H,W,3]`` colour at each query pixel ``uv_q [n,2]`` of its
+    query frame ``qf [n]`` (bilinear)."""
+    out = np.zeros((len(qf), 3), np.float32)
+    for t in np.unique(qf):
+        who = np.flatnonzero(qf == t)
+        out[who] = sample_image(blur[t], uv_q[who].astype(np.float32))
+    return out
+
+
+def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
+                      blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, frac: float = 0.8,
+                      min_frames: int = 3, scales: np.ndarray | None = None):
+    """Which tracks are static points by their colours (module docstring).
+
+    ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
+    ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8 (:func:`blurred_frames`);
+    ``open_ [T,H,W]`` bool (:func:`open_regions`); ``grey``: colour tolerance (grey levels, max over RGB);
+    ``frac``, ``min_frames``: the share of at least that many tested frames that must match; ``scales``: the
+    depth scales tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept.
+
+    Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
+    float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
+    and the tested frames that matched)."""
+    n, T = len(qf), len(poses_c2w)
+    scales = np.linspace(0.96, 1.04, 5) if scales is None else np.asarray(scales, np.float64)
+    scales = scales[np.argsort(np.abs(np.log(scales)), kind="stable")]  # on a tie the scale nearest 1 is kept
+    w2c = invert_pose(poses_c2w)
+    colour = query_colours(uv_q, qf, blur)
+    rays = np.stack([(uv_q[:, 0] - K[0, 2]) / K[0, 0], (uv_q[:, 1] - K[1, 2]) / K[1, 1], np.ones(n)], 1) * z_q[:, None]
+    centre = poses_c2w[qf, :3, 3]
+
+    def points(s):
+        return np.einsum("nij,nj->ni", poses_c2w[qf, :3, :3], rays * s[:, None]) + centre
+
+    best = np.full(n, -1.0)  # the choice: the share of tested frames matched, then the count
+    best_s = np.ones(n)
+    share = np.zeros(n)
+    count = np.zeros(n, np.int32)
+    for s in scales:
+        tested, matched = _tally(points(np.full(n, s)), qf, colour, blur, open_, w2c, K, grey)
+        f = matched / np.maximum(tested, 1)
+        better = f + 1e-4 * matched > best
+        best[better] = (f + 1e-4 * matched)[better]
+        best_s[better], share[better], count[better] = s, f[better], tested[better]
+    static = (count >= min_frames) & (share >= frac)
+    X = points(best_s)
+    keep = np.flatnonzero(static)
+    pix = np.zeros((len(keep), T, 2), np.float32)
+    seen = np.zeros((len(keep), T), bool)
+    for t in range(T):
+        pix[:, t], _, seen[:, t] = _look(X[keep], colour[keep], blur[t], open_[t], w2c[t], K, grey)
+    seen[np.arange(len(keep)), qf[keep]] = True
+    pix[np.arange(len(keep)), qf[keep]] = uv_q[keep]
+    return static, X, pix, seen

@@ -1,0 +1,102 @@
+"""Dynamic-labelled tracks that are static points dragged by a mover's flow: the static hypothesis checked in the
+images (``optim.photo_static``, ``OptimConfig.photo_static_grey``)."""
+
+import numpy as np
+import pytest
+
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import invert_pose, project, transform
+from trackingworld.io.frames import read_frames
+from trackingworld.io.priors import load_masks
+from trackingworld.optim.photo_static import blurred_frames, open_regions, static_hypothesis
+from trackingworld.pipeline.static_side import photo_rescue
+
+Q = 5  # the query frame: movers on both sides of it in time
+
+
+@pytest.fixture(scope="module")
+def scene(tiny_scene):
+    g = dict(np.load(tiny_scene / "gt.npz"))
+    frames, _ = read_frames(tiny_scene / "input" / "frames")
+    masks = load_masks(tiny_scene / "input" / "masks", len(frames))
+    return g, frames, masks
+
+
+def _pixels(sel):
+    ys, xs = np.nonzero(sel)
+    return np.stack([xs, ys], 1).astype(np.float32)
+
+
+def test_background_beside_the_masked_movers_passes_and_the_movers_do_not(scene):
+    """With the exact depth and poses: a share of the background pixels inside the coarse masks shows its query
+    colour wherever its static point projects outside them; the masked movers' pixels almost never do."""
+    g, frames, masks = scene
+    blur, open_ = blurred_frames(frames), open_regions(masks)
+    share = {}
+    for name, sel in (("background", masks[Q] & ~g["dynamic"][Q]), ("mover", g["dynamic"][Q] & ~g["bg_mover"][Q])):
+        uv = _pixels(sel)
+        qf = np.full(len(uv), Q)
+        static, X, pix, seen = static_hypothesis(uv, g["depth"][Q][sel].astype(np.float64), qf, g["poses_c2w"],
+                                                 g["K"], blur, open_)
+        share[name] = static.mean()
+        keep = np.flatnonzero(static)
+        # a static one: its point projects onto its query pixel, its 2D track is that projection, seen there
+        np.testing.assert_allclose(pix[:, Q], uv[keep])
+        assert seen[:, Q].all()
+        w2c = invert_pose(g["poses_c2w"])
+        for t in range(len(frames)):
+            px, _ = project(transform(w2c[t], X[keep]), g["K"])
+            np.testing.assert_allclose(pix[:, t], px, atol=1e-3) if t != Q else None
+            assert (seen[:, t] <= (open_[t][np.rint(px[:, 1]).clip(0, 95).astype(int),
+                                            np.rint(px[:, 0]).clip(0, 127).astype(int)] | (t == Q))).all()
+    assert len(_pixels(masks[Q] & ~g["dynamic"][Q])) > 500
+    assert share["background"] > 0.2
+    assert share["mover"] < 0.01
+
+
+def test_a_stricter_share_or_colour_finds_fewer(scene):
+    g, frames, masks = scene
+    sel = masks[Q] & ~g["dynamic"][Q]
+    uv, z = _pixels(sel), g["depth"][Q][sel].astype(np.float64)
+    args = (uv, z, np.full(len(uv), Q), g["poses_c2w"], g["K"], blurred_frames(frames), open_regions(masks))
+    loose = static_hypothesis(*args, grey=12.0, frac=0.6)[0].sum()
+    default = static_hypothesis(*args)[0].sum()
+    strict = static_hypothesis(*args, grey=4.0, frac=0.8)[0].sum()
+    assert loose >= default > strict
+
+
+def test_photo_rescue_turns_dragged_background_tracks_into_static_points(scene):
+    """Background tracks inside the masks whose 2D tracks drift 1.5 px a frame (dragged): those that pass become
+    static, hold one world point, and their 2D tracks become its projection; the caller's arrays are not written."""
+    g, frames, masks = scene
+    T = len(frames)
+    sel = masks[Q] & ~g["dynamic"][Q]
+    uvq = _pixels(sel)
+    N = len(uvq)
+    uv = (uvq[:, None] + 1.5 * (np.arange(T) - Q)[None, :, None] * np.float32([1, 0])).astype(np.float32)
+    vis = np.ones((N, T), bool)
+    qf = np.full(N, Q)
+    D = np.repeat(g["depth"][Q][sel][:, None], T, 1).astype(np.float32)
+    dynamic = np.ones(N, bool)
+    xyz = np.zeros((N, T, 3), np.float32)
+    uv0, vis0 = uv.copy(), vis.copy()
+    info = {}
+    uv2, vis2, moved = photo_rescue(uv, vis, qf, D, g["poses_c2w"], g["K"], frames, masks, OptimConfig(), dynamic,
+                                    xyz, info)
+    assert info["photo_static"] == {"tested": N, "static": len(moved)} and len(moved) > 0.2 * N
+    np.testing.assert_array_equal(uv, uv0)
+    np.testing.assert_array_equal(vis, vis0)
+    assert not dynamic[moved].any() and dynamic[np.setdiff1d(np.arange(N), moved)].all()
+    np.testing.assert_array_equal(xyz[moved], np.repeat(xyz[moved][:, :1], T, 1))  # one point each
+    true = transform(g["poses_c2w"][Q], np.concatenate([(uvq - g["K"][:2, 2]) / np.diag(g["K"])[:2], np.ones((N, 1))],
+                                                        1) * g["depth"][Q][sel][:, None])
+    assert np.median(np.linalg.norm(xyz[moved, 0] - true[moved], axis=1)) < 0.05  # metres: the right point
+    w2c = invert_pose(g["poses_c2w"])
+    for t in range(T):
+        px, _ = project(transform(w2c[t], xyz[moved, t].astype(np.float64)), g["K"])
+        np.testing.assert_allclose(uv2[moved, t], px, atol=1e-2)
+    assert vis2[moved, Q].all() and vis2[moved].sum() < vis[moved].sum()
+    off = OptimConfig(photo_static_grey=0.0)
+    dyn = np.ones(N, bool)
+    same = photo_rescue(uv, vis, qf, D, g["poses_c2w"], g["K"], frames, masks, off, dyn, xyz.copy(), {})
+    assert same[0] is uv and same[1] is vis and len(same[2]) == 0 and dyn.all()
