@@ -101,8 +101,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     vote by distance alone); ``frames [T,h,w,3]`` uint8 at the processing resolution (the dynamic tracks' static
     hypothesis checked in the images, ``optim.photo_static``; None: not checked). Returns a
     dict with ``poses_c2w [T,4,4]``, ``xyz [N,T,3]`` world metres, ``is_dynamic [N]``, ``labels [N]`` (mask
-    labels), ``depth [T,h,w]`` consistent video depth, ``K [3,3]`` (refined or as given) and ``info`` (losses,
-    counts)."""
+    labels), ``depth [T,h,w]`` consistent video depth, ``K [3,3]`` (refined or as given), ``visible [N,T]``,
+    ``tracks_2d [N,T,2]`` px (the tracks as given, except those the photometric test made static points: their
+    points' projections) and ``info`` (losses, counts)."""
     tm = partial(timed, timings, verbose=cfg.verbose)
     log = stage_logger(cfg.verbose, every=5)
     rng = np.random.default_rng(seed)
@@ -261,6 +262,10 @@ def check_optim(o: OptimConfig) -> None:
         raise InputError(f"depth_mover_rounds {o.depth_mover_rounds} / depth_mover_suspect {o.depth_mover_suspect} / "
                          f"depth_mover_range_px {o.depth_mover_range_px}: the rounds are 1 or more, the suspects' "
                          "fraction of the threshold over 0 and at most 1, the range 0 px or more")
+    if o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1:
+        raise InputError(f"photo_static_grey {o.photo_static_grey} / photo_static_frac {o.photo_static_frac} / "
+                         f"photo_static_frames {o.photo_static_frames}: the colour tolerance is 0 (off) or more, the "
+                         "share from 0 to 1, the frames 1 or more")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
