@@ -9,7 +9,7 @@ from trackingworld.geometry import invert_pose, project, transform
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.optim.labels import DYNAMIC, STATIC
-from trackingworld.optim.photo_static import blurred_frames, open_regions, static_hypothesis
+from trackingworld.optim.photo_static import blurred_frames, near_masks, open_regions, static_hypothesis
 from trackingworld.pipeline.static_side import photo_rescue
 
 Q = 5  # the query frame: movers on both sides of it in time
@@ -109,3 +109,19 @@ def test_photo_rescue_turns_dragged_background_tracks_into_static_points(scene):
     dyn = np.ones(N, bool)
     same = photo_rescue(uv, vis, qf, D, g["poses_c2w"], g["K"], frames, masks, off, dyn, xyz.copy(), {})
     assert same[0] is uv and same[1] is vis and len(same[2]) == 0 and dyn.all()
+
+
+def test_near_masks_finds_the_tracks_a_mask_passes():
+    """A mask square in frame 1 only: a track that comes within 3 px of it there is near, one seen there 6 px away
+    or hidden there is not."""
+    masks = np.zeros((3, 40, 40), bool)
+    masks[1, 10:20, 10:20] = True
+    uv = np.zeros((3, 3, 2), np.float32)
+    uv[:, :] = [30.0, 30.0]
+    uv[0, 1] = [22.0, 15.0]  # 3 px right of the square's last column (19)
+    uv[1, 1] = [25.0, 15.0]  # 6 px right
+    uv[2, 1] = [22.0, 15.0]
+    vis = np.ones((3, 3), bool)
+    vis[2, 1] = False  # hidden in the mask's frame
+    np.testing.assert_array_equal(near_masks(uv, vis, masks, 4.0), [True, False, False])
+    np.testing.assert_array_equal(near_masks(uv, vis, masks, 8.0), [True, True, False])

@@ -252,6 +252,10 @@ class OptimConfig:
     photo_static_grey: float = 12.0
     photo_static_frac: float = 0.8
     photo_static_frames: int = 3
+    # ... and, with photo_static_near_px > 0, the tracks of the masks' static region seen that close (px) to the masks
+    # in some frame; 0: off (twenty scenes at 4 px: static kept 95.8 -> 96.1 but `default` 10's missed mover, which
+    # passes near a masked one, 95.0 -> 79.5 bg-mover recall; docs/results.md, stop 46)
+    photo_static_near_px: float = 0.0
     static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.

@@ -45,6 +45,21 @@ def open_regions(masks: np.ndarray, margin_px: int = MASK_MARGIN_PX) -> np.ndarr
     return np.stack([cv2.dilate(m.astype(np.uint8), k) == 0 for m in masks])
 
 
+def near_masks(uv: np.ndarray, vis: np.ndarray, masks: np.ndarray, px: float) -> np.ndarray:
+    """``[n]`` bool: the tracks (``uv [n,T,2]`` px, ``vis [n,T]``) seen within ``px`` of the coarse ``masks [T,H,W]``
+    in some frame (cv2.distanceTransform of each frame's complement)."""
+    n, T = vis.shape
+    out = np.zeros(n, bool)
+    for t in range(T):
+        v = np.flatnonzero(vis[:, t] & ~out)
+        if not len(v) or not masks[t].any():
+            continue
+        dist = cv2.distanceTransform((~masks[t]).astype(np.uint8), cv2.DIST_L2, 3)
+        x, y = nearest_pixel(uv[v, t], masks.shape[2], masks.shape[1])
+        out[v[dist[y, x] <= px]] = True
+    return out
+
+
 def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndarray, w2c_t: np.ndarray,
           K: np.ndarray, grey: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points ``X [n,3]`` seen by one camera (``w2c_t [4,4]``, blurred frame ``blur_t [H,W,3]``, open region

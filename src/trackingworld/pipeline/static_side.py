@@ -16,7 +16,7 @@ from trackingworld.config import OptimConfig
 from trackingworld.geometry import transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC
-from trackingworld.optim.photo_static import blurred_frames, open_regions, static_hypothesis
+from trackingworld.optim.photo_static import blurred_frames, near_masks, open_regions, static_hypothesis
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
@@ -217,6 +217,9 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
     # shows colours near its query colour at the static projection too (twenty scenes: bg-mover recall 93.6 -> 91.0
     # with every dynamic track tested, `default` 10 97.9 -> 79.3; docs/lifting.md)
     cand = np.flatnonzero(dynamic if labels is None else dynamic & (labels != STATIC))
+    if labels is not None and cfg.photo_static_near_px > 0:  # ... but for those a masked mover passed
+        region = np.flatnonzero(dynamic & (labels == STATIC))
+        cand = np.union1d(cand, region[near_masks(uv[region], vis[region], masks, cfg.photo_static_near_px)])
     if cfg.photo_static_grey <= 0 or not len(cand):
         return uv, vis, cand[:0]
     static, X, pix, seen = static_hypothesis(uv[cand, qf[cand]], D[cand, qf[cand]].astype(np.float64), qf[cand],
