@@ -143,8 +143,8 @@ def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):
         with pytest.raises(InputError, match="the rounds are 1 or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     for bad in (dict(photo_static_grey=-1.0), dict(photo_static_frac=1.2), dict(photo_static_frames=0),
-                dict(photo_static_near_px=-1.0)):
-        with pytest.raises(InputError, match="the colour tolerance is 0 \\(off\\) or more"):
+                dict(photo_static_near_px=-1.0), dict(photo_static_range=1.0)):
+        with pytest.raises(InputError, match="tolerance is 0 \\(off\\) or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
 
 

@@ -9,7 +9,13 @@ from trackingworld.geometry import invert_pose, project, transform
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.optim.labels import DYNAMIC, STATIC
-from trackingworld.optim.photo_static import blurred_frames, near_masks, open_regions, static_hypothesis
+from trackingworld.optim.photo_static import (
+    blurred_frames,
+    depth_scales,
+    near_masks,
+    open_regions,
+    static_hypothesis,
+)
 from trackingworld.pipeline.static_side import photo_rescue
 
 Q = 5  # the query frame: movers on both sides of it in time
@@ -125,3 +131,8 @@ def test_near_masks_finds_the_tracks_a_mask_passes():
     vis[2, 1] = False  # hidden in the mask's frame
     np.testing.assert_array_equal(near_masks(uv, vis, masks, 4.0), [True, False, False])
     np.testing.assert_array_equal(near_masks(uv, vis, masks, 8.0), [True, True, False])
+
+
+def test_depth_scales_are_symmetric_about_one():
+    np.testing.assert_allclose(depth_scales(0.04), [0.96, 0.98, 1.0, 1.02, 1.04])
+    assert len(depth_scales(0.1)) == 11 and depth_scales(0.0).tolist() == [1.0]

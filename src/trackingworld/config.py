@@ -252,6 +252,9 @@ class OptimConfig:
     photo_static_grey: float = 12.0
     photo_static_frac: float = 0.8
     photo_static_frames: int = 3
+    # ... the depth scales tried: 1 +- this, in steps of 0.02 (0.1 on twenty scenes: static kept 95.8 -> 95.9, bg-mover
+    # recall 92.9 -> 92.7, 2.2x the test's time; docs/results.md, stop 46)
+    photo_static_range: float = 0.04
     # ... and, with photo_static_near_px > 0, the tracks of the masks' static region seen that close (px) to the masks
     # in some frame; 0: off (twenty scenes at 4 px: static kept 95.8 -> 96.1 but `default` 10's missed mover, which
     # passes near a masked one, 95.0 -> 79.5 bg-mover recall; docs/results.md, stop 46)

@@ -346,6 +346,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "outside the masks (0: off)")
     g.add_argument("--photo-static-frac", type=float, default=d.photo_static_frac, metavar="FRAC",
                    help="with --photo-static: the share of those frames that must match")
+    g.add_argument("--photo-static-range", type=float, default=d.photo_static_range, metavar="FRAC",
+                   help="with --photo-static: the depths tried, the corrected prior's times 1 +- this (steps of 0.02)")
     g.add_argument("--photo-static-near", type=float, default=d.photo_static_near_px, metavar="PX",
                    help="with --photo-static: the tracks of the masks' static region seen within this many px of the "
                         "masks are tested too (0: only the masks' dynamic and ambiguous tracks)")
@@ -391,7 +393,7 @@ def _optim_config(a):
         depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
-        photo_static_near_px=a.photo_static_near,
+        photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, dynamic_cell=a.dynamic_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})

@@ -45,6 +45,13 @@ def open_regions(masks: np.ndarray, margin_px: int = MASK_MARGIN_PX) -> np.ndarr
     return np.stack([cv2.dilate(m.astype(np.uint8), k) == 0 for m in masks])
 
 
+def depth_scales(span: float, step: float = 0.02) -> np.ndarray:
+    """The depth scales tried along a query ray: 1 - ``span`` to 1 + ``span`` in steps of about ``step``
+    (0.04: 0.96, 0.98, 1, 1.02, 1.04)."""
+    k = int(round(span / step))
+    return 1.0 + step * np.arange(-k, k + 1) if k > 0 else np.ones(1)
+
+
 def near_masks(uv: np.ndarray, vis: np.ndarray, masks: np.ndarray, px: float) -> np.ndarray:
     """``[n]`` bool: the tracks (``uv [n,T,2]`` px, ``vis [n,T]``) seen within ``px`` of the coarse ``masks [T,H,W]``
     in some frame (cv2.distanceTransform of each frame's complement)."""
@@ -121,7 +128,7 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
     and the tested frames that matched)."""
     n, T = len(qf), len(poses_c2w)
-    scales = np.linspace(0.96, 1.04, 5) if scales is None else np.asarray(scales, np.float64)
+    scales = depth_scales(0.04) if scales is None else np.asarray(scales, np.float64)
     scales = scales[np.argsort(np.abs(np.log(scales)), kind="stable")]  # on a tie the scale nearest 1 is kept
     w2c = invert_pose(poses_c2w)
     colour = query_colours(uv_q, qf, blur)

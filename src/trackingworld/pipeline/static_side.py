@@ -16,7 +16,13 @@ from trackingworld.config import OptimConfig
 from trackingworld.geometry import transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC
-from trackingworld.optim.photo_static import blurred_frames, near_masks, open_regions, static_hypothesis
+from trackingworld.optim.photo_static import (
+    blurred_frames,
+    depth_scales,
+    near_masks,
+    open_regions,
+    static_hypothesis,
+)
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
@@ -224,7 +230,8 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
         return uv, vis, cand[:0]
     static, X, pix, seen = static_hypothesis(uv[cand, qf[cand]], D[cand, qf[cand]].astype(np.float64), qf[cand],
                                              poses, K, blurred_frames(frames), open_regions(masks),
-                                             cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames)
+                                             cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
+                                             depth_scales(cfg.photo_static_range))
     idx = cand[static]
     info["photo_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
     if not len(idx):

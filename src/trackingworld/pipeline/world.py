@@ -263,11 +263,12 @@ def check_optim(o: OptimConfig) -> None:
                          f"depth_mover_range_px {o.depth_mover_range_px}: the rounds are 1 or more, the suspects' "
                          "fraction of the threshold over 0 and at most 1, the range 0 px or more")
     if (o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1
-            or o.photo_static_near_px < 0):
+            or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1):
         raise InputError(f"photo_static_grey {o.photo_static_grey} / photo_static_frac {o.photo_static_frac} / "
                          f"photo_static_frames {o.photo_static_frames} / photo_static_near_px "
-                         f"{o.photo_static_near_px}: the colour tolerance is 0 (off) or more, the share from 0 to 1, "
-                         "the frames 1 or more, the distance 0 or more")
+                         f"{o.photo_static_near_px} / photo_static_range {o.photo_static_range}: the colour "
+                         "tolerance is 0 (off) or more, the share from 0 to 1, the frames 1 or more, the distance 0 or "
+                         "more, the depth range from 0 to below 1")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
