@@ -5,18 +5,13 @@ import numpy as np
 import pytest
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import invert_pose, project, transform
+from trackingworld.geometry import invert_pose, project, transform, unproject
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
-from trackingworld.optim.labels import DYNAMIC, STATIC
-from trackingworld.optim.photo_static import (
-    blurred_frames,
-    depth_scales,
-    near_masks,
-    open_regions,
-    static_hypothesis,
-)
+from trackingworld.optim.labels import DYNAMIC, STATIC, mask_regions
+from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
 from trackingworld.pipeline.static_side import photo_rescue
+from trackingworld.tracking2d.flow_tracker import blurred_frames
 
 Q = 5  # the query frame: movers on both sides of it in time
 
@@ -29,6 +24,11 @@ def scene(tiny_scene):
     return g, frames, masks
 
 
+def _open(masks):
+    """Where the static hypothesis is tested: the masks' sure-static region, as the pipeline reads it."""
+    return mask_regions(masks, MASK_MARGIN_PX)[0]
+
+
 def _pixels(sel):
     ys, xs = np.nonzero(sel)
     return np.stack([xs, ys], 1).astype(np.float32)
@@ -38,7 +38,7 @@ def test_background_beside_the_masked_movers_passes_and_the_movers_do_not(scene)
     """With the exact depth and poses: a share of the background pixels inside the coarse masks shows its query
     colour wherever its static point projects outside them; the masked movers' pixels almost never do."""
     g, frames, masks = scene
-    blur, open_ = blurred_frames(frames), open_regions(masks)
+    blur, open_ = blurred_frames(frames), _open(masks)
     share = {}
     for name, sel in (("background", masks[Q] & ~g["dynamic"][Q]), ("mover", g["dynamic"][Q] & ~g["bg_mover"][Q])):
         uv = _pixels(sel)
@@ -65,7 +65,7 @@ def test_a_stricter_share_or_colour_finds_fewer(scene):
     g, frames, masks = scene
     sel = masks[Q] & ~g["dynamic"][Q]
     uv, z = _pixels(sel), g["depth"][Q][sel].astype(np.float64)
-    args = (uv, z, np.full(len(uv), Q), g["poses_c2w"], g["K"], blurred_frames(frames), open_regions(masks))
+    args = (uv, z, np.full(len(uv), Q), g["poses_c2w"], g["K"], blurred_frames(frames), _open(masks))
     loose = static_hypothesis(*args, grey=12.0, frac=0.6)[0].sum()
     default = static_hypothesis(*args)[0].sum()
     strict = static_hypothesis(*args, grey=4.0, frac=0.8)[0].sum()
@@ -95,8 +95,7 @@ def test_photo_rescue_turns_dragged_background_tracks_into_static_points(scene):
     np.testing.assert_array_equal(vis, vis0)
     assert not dynamic[moved].any() and dynamic[np.setdiff1d(np.arange(N), moved)].all()
     np.testing.assert_array_equal(xyz[moved], np.repeat(xyz[moved][:, :1], T, 1))  # one point each
-    true = transform(g["poses_c2w"][Q], np.concatenate([(uvq - g["K"][:2, 2]) / np.diag(g["K"])[:2], np.ones((N, 1))],
-                                                        1) * g["depth"][Q][sel][:, None])
+    true = transform(g["poses_c2w"][Q], unproject(uvq.astype(np.float64), g["depth"][Q][sel], g["K"]))
     assert np.median(np.linalg.norm(xyz[moved, 0] - true[moved], axis=1)) < 0.05  # metres: the right point
     w2c = invert_pose(g["poses_c2w"])
     for t in range(T):

@@ -22,27 +22,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from trackingworld.geometry import invert_pose, nearest_pixel
+from trackingworld.geometry import invert_pose, nearest_pixel, project, transform, unproject
 from trackingworld.tracking2d.flow_tracker import sample_image
 
-BLUR_SIGMA = 1.0  # px: the colours are compared on frames blurred this much (as the 2D tracker's colour check)
-MASK_MARGIN_PX = 2  # the coarse masks are dilated by this much: frames where the point is in them do not count
+# the frames where the point lies within this many px of the coarse masks do not count: the test reads the masks'
+# sure-static region (optim.labels.mask_regions with this margin)
+MASK_MARGIN_PX = 2
 # at most this many frames are tested, evenly strided over the video: the test's cost grows with the candidates
 # times the frames, both of which grow with the video. The 120-frame video: 1.6 s with every frame, 0.57 s with 32;
 # at 32, the five 48-frame `hard` scenes kept 0.0-0.7 points fewer static tracks static than with every frame
 MAX_TESTED_FRAMES = 48
-
-
-def blurred_frames(frames: np.ndarray, sigma: float = BLUR_SIGMA) -> np.ndarray:
-    """``frames [T,H,W,3]`` uint8 -> the same blurred by a Gaussian of ``sigma`` px, uint8."""
-    return np.stack([cv2.GaussianBlur(f, (0, 0), sigma) for f in frames])
-
-
-def open_regions(masks: np.ndarray, margin_px: int = MASK_MARGIN_PX) -> np.ndarray:
-    """``[T,H,W]`` bool: where the static hypothesis is tested, outside the coarse ``masks [T,H,W]`` dilated by
-    ``margin_px``."""
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
-    return np.stack([cv2.dilate(m.astype(np.uint8), k) == 0 for m in masks])
 
 
 def depth_scales(span: float, step: float = 0.02) -> np.ndarray:
@@ -73,10 +62,8 @@ def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndar
     ``open_t [H,W]``): (pixels [n,2] float32; tested [n] bool: in front of the camera, in the image and in the open
     region; matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB)."""
     H, W = open_t.shape
-    P = X @ w2c_t[:3, :3].T + w2c_t[:3, 3]
-    z = P[:, 2]
-    zs = np.where(z > 1e-9, z, 1.0)
-    uv = np.stack([P[:, 0] / zs * K[0, 0] + K[0, 2], P[:, 1] / zs * K[1, 1] + K[1, 2]], 1).astype(np.float32)
+    uv, z = project(transform(w2c_t, X), K, eps=1e-9)
+    uv = uv.astype(np.float32)
     tested = (z > 1e-9) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
     x, y = nearest_pixel(uv, W, H)
     tested &= open_t[y, x]
@@ -118,11 +105,12 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     """Which tracks are static points by their colours (module docstring).
 
     ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
-    ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8 (:func:`blurred_frames`);
-    ``open_ [T,H,W]`` bool (:func:`open_regions`); ``grey``: colour tolerance (grey levels, max over RGB);
-    ``frac``, ``min_frames``: the share of at least that many tested frames (every frame but the query frame,
-    strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the
-    depth scales tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept.
+    ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8
+    (``tracking2d.flow_tracker.blurred_frames``); ``open_ [T,H,W]`` bool, where the hypothesis is tested (the
+    masks' sure-static region: ``optim.labels.mask_regions`` with MASK_MARGIN_PX); ``grey``: colour tolerance
+    (grey levels, max over RGB); ``frac``, ``min_frames``: the share of at least that many tested frames (every
+    frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales
+    tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept.
 
     Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
     float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
@@ -132,11 +120,10 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     scales = scales[np.argsort(np.abs(np.log(scales)), kind="stable")]  # on a tie the scale nearest 1 is kept
     w2c = invert_pose(poses_c2w)
     colour = query_colours(uv_q, qf, blur)
-    rays = np.stack([(uv_q[:, 0] - K[0, 2]) / K[0, 0], (uv_q[:, 1] - K[1, 2]) / K[1, 1], np.ones(n)], 1) * z_q[:, None]
-    centre = poses_c2w[qf, :3, 3]
+    cam = unproject(uv_q.astype(np.float64), z_q, K)  # [n,3] each query pixel at its depth, its camera's axes
 
-    def points(s):
-        return np.einsum("nij,nj->ni", poses_c2w[qf, :3, :3], rays * s[:, None]) + centre
+    def points(s):  # world points at the depth scales s [n]
+        return transform(poses_c2w[qf], cam * s[:, None])
 
     best = np.full(n, -1.0)  # the choice: the share of tested frames matched, then the count
     best_s = np.ones(n)

@@ -15,14 +15,8 @@ import torch
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
-from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC
-from trackingworld.optim.photo_static import (
-    blurred_frames,
-    depth_scales,
-    near_masks,
-    open_regions,
-    static_hypothesis,
-)
+from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, mask_regions
+from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
@@ -31,6 +25,7 @@ from trackingworld.optim.static_tests import (
     vote_short,
 )
 from trackingworld.pipeline.fields import camera_depths
+from trackingworld.tracking2d.flow_tracker import blurred_frames
 
 VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
 
@@ -222,14 +217,16 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
     # the masks' static region is left out: there a mover the masks missed, sliding slowly over a smooth texture,
     # shows colours near its query colour at the static projection too (twenty scenes: bg-mover recall 93.6 -> 91.0
     # with every dynamic track tested, `default` 10 97.9 -> 79.3; docs/lifting.md)
+    if cfg.photo_static_grey <= 0:
+        return uv, vis, np.zeros(0, np.int64)
     cand = np.flatnonzero(dynamic if labels is None else dynamic & (labels != STATIC))
     if labels is not None and cfg.photo_static_near_px > 0:  # ... but for those a masked mover passed
         region = np.flatnonzero(dynamic & (labels == STATIC))
         cand = np.union1d(cand, region[near_masks(uv[region], vis[region], masks, cfg.photo_static_near_px)])
-    if cfg.photo_static_grey <= 0 or not len(cand):
-        return uv, vis, cand[:0]
+    if not len(cand):
+        return uv, vis, cand
     static, X, pix, seen = static_hypothesis(uv[cand, qf[cand]], D[cand, qf[cand]].astype(np.float64), qf[cand],
-                                             poses, K, blurred_frames(frames), open_regions(masks),
+                                             poses, K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
                                              cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
                                              depth_scales(cfg.photo_static_range))
     idx = cand[static]

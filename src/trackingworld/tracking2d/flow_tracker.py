@@ -176,6 +176,12 @@ def sample_image(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return out.reshape((rows * cols,) + img.shape[2:])[:M]
 
 
+def blurred_frames(frames: np.ndarray, sigma: float = 1.0) -> np.ndarray:
+    """``frames [T,H,W,3]`` uint8 -> the same blurred by a Gaussian of ``sigma`` px, uint8: the colours the colour
+    checks compare (here, and the lifting's photometric static test, ``optim.photo_static``)."""
+    return np.stack([cv2.GaussianBlur(f, (0, 0), sigma) for f in frames])
+
+
 def sample_flow(flow: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear sample of ``flow [H,W,2]`` at ``pts [M,2]``."""
     return sample_image(flow, pts)
@@ -251,8 +257,7 @@ class FlowTracker:
                 skip_fwd, skip_bwd = pairwise_flows(gray, c.preset, c.verbose, c.skip_stride, patch, frames, med)
             else:
                 skip_fwd = skip_bwd = np.zeros((0,) + fwd.shape[1:], np.float32)
-            self._video = _Video(id(frames), fwd, bwd, gray,
-                                 np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in frames]), skip_fwd, skip_bwd)
+            self._video = _Video(id(frames), fwd, bwd, gray, blurred_frames(frames), skip_fwd, skip_bwd)
             if c.drag_abs_px > 0:
                 self._video.varied_fwd = flow_varies(fwd, c.drag_abs_px, c.drag_window_px)
                 self._video.varied_bwd = flow_varies(bwd, c.drag_abs_px, c.drag_window_px)
