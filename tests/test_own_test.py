@@ -270,3 +270,56 @@ def test_in_a_video_barely_longer_than_vote_short_the_tracks_seen_once_still_tak
     out = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False), {})
     assert vis.sum(1).max() <= OptimConfig().vote_short
     assert len(once) > 20 and not out["is_dynamic"][once].any()
+
+
+def _border_strip_scene(T2: int = 12):
+    """A fronto-parallel wall at 5 m seen by a camera sliding 20 cm a frame along x (the wall moves 4 px a frame
+    to the left in the image), every pixel of frame 0 tracked while it is in view; a masked box at 4.5 m, x 12-27
+    and y 20-51 px, moves with the camera (its pixels stay put: a mover, seen in every frame). Near the left border
+    the wall is seen once (x 0-3), in 2-3 frames (x 4-11, between the strip and the box): the long tracks nearest
+    the strip are the box's. Returns (TrackResult, prior, masks, the strip's tracks, the box's)."""
+    ys, xs = np.mgrid[0:H, 0:W]
+    uv0 = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+    box = (uv0[:, 0] >= 12) & (uv0[:, 0] < 28) & (uv0[:, 1] >= 20) & (uv0[:, 1] < 52)
+    prior = np.full((T2, H, W), 5.0, np.float32)
+    prior[:, 20:52, 12:28] = 4.5
+    masks = np.zeros(prior.shape, bool)
+    masks[:, 20:52, 12:28] = True
+    tracks = np.stack([uv0 - [4.0 * t, 0.0] for t in range(T2)], 1)  # [N,T2,2]
+    tracks[box] = uv0[box][:, None]
+    vis = (tracks[..., 0] >= 0) & (tracks[..., 0] <= W - 1)
+    behind = ~box[:, None] & (tracks[..., 0] >= 12) & (tracks[..., 0] < 28) & (tracks[..., 1] >= 20) & (
+        tracks[..., 1] < 52)
+    vis &= ~behind  # the wall behind the box is hidden
+    q = np.concatenate([np.zeros((len(uv0), 1)), uv0], 1)
+    tr = TrackResult(tracks.astype(np.float32), vis, np.ones(vis.shape, np.float32), q.astype(np.float32))
+    strip = np.flatnonzero((uv0[:, 0] < 4) & (uv0[:, 1] >= 22) & (uv0[:, 1] < 50))
+    return tr, prior, masks, strip, np.flatnonzero(box)
+
+
+def test_a_strip_seen_once_beside_a_mover_takes_the_verdict_of_the_short_static_tracks_next_to_it():
+    """``vote_once_gap_px``: the wall's strip seen once at the border, with no long track within 8 px, takes the
+    vote of every track seen in two frames or more (the short static ones beside it): static; by the long tracks
+    alone (``inf``; the box's are the nearest) it is dynamic (measured: all of it). The box stays dynamic."""
+    tr, prior, masks, strip, box = _border_strip_scene()
+    assert (tr.visible[strip].sum(1) == 1).all()
+    runs = {on: world.optimise(tr, prior, masks, K, OptimConfig(verbose=False,
+                                                               **({} if on else {"vote_once_gap_px": np.inf})),
+                               {})["is_dynamic"] for on in (True, False)}
+    assert runs[True][box].mean() > 0.95 and runs[False][box].mean() > 0.95
+    assert runs[False][strip].mean() > 0.5
+    assert runs[True][strip].mean() < 0.05
+
+
+def test_far_from_finds_the_tracks_with_no_reference_track_near_them_in_their_query_frame():
+    """``far_from``: per query frame, only the reference tracks visible there count; inf finds none."""
+    from trackingworld.pipeline.static_side import far_from
+
+    uv = np.array([[[0, 0], [50, 50]], [[5, 0], [0, 0]], [[30, 0], [30, 0]], [[0, 9], [50, 59]]], np.float32)
+    vis = np.array([[True, True], [True, False], [True, True], [True, True]])
+    qf = np.array([0, 1, 0, 1])
+    refs = np.array([1, 2])  # track 1 is visible in frame 0 only, track 2 in both
+    got = far_from(np.array([0, 3]), refs, uv, vis, qf, 8.0)
+    np.testing.assert_array_equal(got, [False, True])  # 5 px from track 1 in frame 0; in frame 1 only track 2
+    np.testing.assert_array_equal(far_from(np.array([0, 3]), refs, uv, vis, qf, 70.0), [False, False])  # 62 px
+    assert not far_from(np.array([0, 3]), refs, uv, vis, qf, np.inf).any()

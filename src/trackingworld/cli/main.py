@@ -337,6 +337,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--vote-short", type=int, default=d.vote_short, metavar="FRAMES",
                    help="(not in the paper; with --own-test) a track seen in at most this many frames, too short to "
                         "fail the static test, takes the vote of the tracks seen in more (1: the tracks seen once)")
+    g.add_argument("--vote-once-gap", type=float, default=d.vote_once_gap_px, metavar="PX",
+                   help="(not in the paper) a track seen once with no track seen in more than --vote-short frames "
+                        "within PX takes the vote of every track seen in two frames or more (inf: off)")
     g.add_argument("--vote-flip-px", type=float, default=d.vote_flip_px, metavar="PX",
                    help="with --vote-short: the vote makes a short track dynamic only when its static fit misses a "
                         "pixel by more than this (0: always)")
@@ -392,6 +395,7 @@ def _optim_config(a):
         depth_mover_rounds=a.depth_mover_rounds, depth_mover_suspect=a.depth_mover_suspect,
         depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
+        vote_once_gap_px=a.vote_once_gap,
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import transform, unproject
@@ -160,38 +161,69 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
     cannot fail the test: each takes the verdict of the tracks seen in more frames nearest it (one per query frame
     and VOTE_CELL_PX square, prior-lifted 3D distance and ``colours [N,3]`` at the query pixels), the depth-mover
     test's included, and becomes dynamic only where its own static fit misses a pixel by more than
-    ``vote_flip_px``. ``once``: the tracks seen once that :func:`rebuild_static` placed; ``queries [N,3]``."""
+    ``vote_flip_px``. A track seen once with no track seen in more than ``vote_short`` frames within
+    ``vote_once_gap_px`` of it takes instead, after the others are settled, the vote of every track seen in two
+    frames or more: at an image border the camera leaves, the nearest long tracks to a strip seen once may all lie
+    on a mover beside it, beyond the short static ones. ``once``: the tracks seen once that
+    :func:`rebuild_static` placed; ``queries [N,3]``."""
     cfg, K, uv = fits.cfg, fits.K, fits.uv
     qf = queries[:, 0].astype(np.int64)
     seen = vis.sum(1)
     voters = np.flatnonzero(seen > cfg.vote_short)
     voters = voters[cell_representatives(queries[voters], VOTE_CELL_PX)]
-    short = np.union1d(once, np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short)))
+    short_multi = np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short))
+    later = once[far_from(once, np.flatnonzero(seen > cfg.vote_short), uv, vis, qf, cfg.vote_once_gap_px)]
+    short = np.union1d(np.setdiff1d(once, later), short_multi)
+    colour = colours is not None and cfg.vote_colour_sigma > 0
+    k = cfg.vote_k if colour else cfg.idw_k
+    everyone = np.union1d(short, later)
+    was = dynamic[everyone]
+    multi = np.flatnonzero(seen >= 2)
+    multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
     if len(short):
-        colour = colours is not None and cfg.vote_colour_sigma > 0
-        k = cfg.vote_k if colour else cfg.idw_k
-        was = dynamic[short]
         dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
         # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
         # tracks seen once take the vote of those seen in two or more, as with vote_short 1
-        bare = once[~vis[voters].any(0)[qf[once]]] if len(voters) else once
+        first = np.setdiff1d(once, later)
+        bare = first[~vis[voters].any(0)[qf[first]]] if len(voters) else first
         if len(bare):
-            multi = np.flatnonzero(seen >= 2)
-            multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
             dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
         # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
         tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's
-        flip = short[dynamic[short] & ~was & tested]
+        was_short = was[np.searchsorted(everyone, short)]
+        flip = short[dynamic[short] & ~was_short & tested]
         if len(flip) and cfg.vote_flip_px > 0:
             worst = fits.test(flip, vis)[2]
             dynamic[flip[worst <= cfg.vote_flip_px]] = False
         # tracks the vote made static get their static point now: the off-point observations are judged
         # against it next
-        now_static = short[~dynamic[short] & was & tested]
+        now_static = short[~dynamic[short] & was_short & tested]
         if len(now_static):
             fits.fit(now_static, vis, xyz)
-        info["voted"] = {"tracks": int(len(short)), "changed": int((dynamic[short] != was).sum())}
+    if len(later):
+        dynamic[later] = vote_short(later, multi, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
+    if len(everyone):
+        info["voted"] = {"tracks": int(len(everyone)), "changed": int((dynamic[everyone] != was).sum())}
     info["dynamic"] = int(dynamic.sum())
+
+
+def far_from(who, refs, uv, vis, qf, px: float) -> np.ndarray:
+    """``[n]`` bool: of the tracks ``who`` [n] (indices), those with no track of ``refs`` (indices) visible in their
+    query frame within ``px`` pixels of their query pixel. uv [N,T,2] px, vis [N,T], qf [N] query frames."""
+    out = np.zeros(len(who), bool)
+    if not np.isfinite(px):
+        return out
+    refs_t = np.ascontiguousarray(vis[refs].T)
+    for q in np.unique(qf[who]):
+        sel = np.flatnonzero(qf[who] == q)
+        r = refs[refs_t[q]]
+        if not len(r):
+            out[sel] = True
+            continue
+        d, _ = cKDTree(uv[r, q].astype(np.float64)).query(uv[who[sel], q].astype(np.float64),
+                                                            distance_upper_bound=px + 1e-9)
+        out[sel] = d > px
+    return out
 
 
 def drop_off_point(vis, qf, fits: StaticFits, dynamic, xyz, info: dict) -> np.ndarray:

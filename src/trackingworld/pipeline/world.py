@@ -255,9 +255,10 @@ def check_optim(o: OptimConfig) -> None:
     if not 0 <= o.slip_run <= 1 or o.slip_px <= 0 or o.slip_window < 1:
         raise InputError(f"slip_run {o.slip_run} / slip_px {o.slip_px} / slip_window "
                          f"{o.slip_window}: the run's fraction is from 0 to 1, its bound and window positive")
-    if o.vote_colour_sigma < 0 or o.vote_k < 1:
-        raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k}: the colour "
-                         "weight's width is 0 (off) or more, the voters 1 or more")
+    if o.vote_colour_sigma < 0 or o.vote_k < 1 or not o.vote_once_gap_px >= 0:
+        raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k} / vote_once_gap_px "
+                         f"{o.vote_once_gap_px}: the colour weight's width is 0 (off) or more, the voters 1 or "
+                         "more, the gap 0 px or more (inf: off)")
     if o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1 or o.depth_mover_range_px < 0:
         raise InputError(f"depth_mover_rounds {o.depth_mover_rounds} / depth_mover_suspect {o.depth_mover_suspect} / "
                          f"depth_mover_range_px {o.depth_mover_range_px}: the rounds are 1 or more, the suspects' "
