@@ -246,8 +246,8 @@ class OptimConfig:
     # (not in the paper) a track seen once with no track seen in more than vote_short frames within this many
     # pixels takes the vote of every track seen in two frames or more instead, after those are settled (inf: off).
     # At a border the camera leaves, a strip seen once may have only a mover's long tracks near it. Twenty
-    # synthetic scenes: static kept 95.8 -> 95.9 (>= 95 on 16 instead of 14), bg-mover and dynamic recall
-    # unchanged or up (docs/lifting.md, item 4)
+    # synthetic scenes: static kept 95.83 -> 95.93 (>= 95 on 16 instead of 14), bg-mover recall 92.90 either way,
+    # dynamic recall 95.45 -> 95.49 (docs/lifting.md, item 4)
     vote_once_gap_px: float = 8.0
     vote_flip_px: float = 1.0
     # (not in the paper) a dynamic-labelled track is a static point the 2D tracker dragged along with a mover when that

@@ -178,8 +178,8 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
     k = cfg.vote_k if colour else cfg.idw_k
     everyone = np.union1d(short, later)
     was = dynamic[everyone]
-    multi = np.flatnonzero(seen >= 2)
-    multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
+    multi = np.flatnonzero(seen >= 2) if len(once) else once[:0]  # the voters of the tracks seen once by the tested
+    multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)] if len(multi) else multi
     if len(short):
         dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
         # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
