@@ -319,7 +319,8 @@ def test_far_from_finds_the_tracks_with_no_reference_track_near_them_in_their_qu
     vis = np.array([[True, True], [True, False], [True, True], [True, True]])
     qf = np.array([0, 1, 0, 1])
     refs = np.array([1, 2])  # track 1 is visible in frame 0 only, track 2 in both
-    got = far_from(np.array([0, 3]), refs, uv, vis, qf, 8.0)
+    got = far_from(np.array([0, 3]), refs, uv, vis, qf, 8.0, (64, 64))
     np.testing.assert_array_equal(got, [False, True])  # 5 px from track 1 in frame 0; in frame 1 only track 2
-    np.testing.assert_array_equal(far_from(np.array([0, 3]), refs, uv, vis, qf, 70.0), [False, False])  # 62 px
-    assert not far_from(np.array([0, 3]), refs, uv, vis, qf, np.inf).any()
+    near = far_from(np.array([0, 3]), refs, uv, vis, qf, 70.0, (64, 64))  # track 3 is 62 px from track 2
+    np.testing.assert_array_equal(near, [False, False])
+    assert not far_from(np.array([0, 3]), refs, uv, vis, qf, np.inf, (64, 64)).any()

@@ -243,8 +243,9 @@ class OptimConfig:
     # tracks fit their point within 0.16-0.21 px (median), those on the missed movers 1.7-2.1 px (docs/lifting.md,
     # item 4)
     vote_short: int = 10
-    # (not in the paper) a track seen once with no track seen in more than vote_short frames within this many
-    # pixels takes the vote of every track seen in two frames or more instead, after those are settled (inf: off).
+    # (not in the paper) a track seen once with none of its voters (the tracks seen in more than vote_short frames,
+    # one per query frame and 4 px square) within this many pixels takes the vote of every track seen in two frames
+    # or more instead, after those are settled (inf: off).
     # At a border the camera leaves, a strip seen once may have only a mover's long tracks near it. Twenty
     # synthetic scenes: static kept 95.83 -> 95.93 (>= 95 on 16 instead of 14), bg-mover recall 92.90 either way,
     # dynamic recall 95.45 -> 95.49 (docs/lifting.md, item 4)

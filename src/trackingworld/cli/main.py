@@ -338,8 +338,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper; with --own-test) a track seen in at most this many frames, too short to "
                         "fail the static test, takes the vote of the tracks seen in more (1: the tracks seen once)")
     g.add_argument("--vote-once-gap", type=float, default=d.vote_once_gap_px, metavar="PX",
-                   help="(not in the paper) a track seen once with no track seen in more than --vote-short frames "
-                        "within PX takes the vote of every track seen in two frames or more (inf: off)")
+                   help="(not in the paper) a track seen once with none of its voters (tracks seen in more than "
+                        "--vote-short frames) within PX takes the vote of every track seen in two frames or more "
+                        "(inf: off)")
     g.add_argument("--vote-flip-px", type=float, default=d.vote_flip_px, metavar="PX",
                    help="with --vote-short: the vote makes a short track dynamic only when its static fit misses a "
                         "pixel by more than this (0: always)")

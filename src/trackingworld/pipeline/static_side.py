@@ -9,12 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import transform, unproject
+from trackingworld.geometry import nearest_pixel, transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, mask_regions
 from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
@@ -156,30 +156,33 @@ def rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits: Static
     return vis, once
 
 
-def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, colours, info: dict) -> None:
+def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, colours, info: dict,
+                      shape: tuple[int, int]) -> None:
     """(not in the paper) A track seen once cannot be tested, and one seen in ``vote_short`` frames or fewer
     cannot fail the test: each takes the verdict of the tracks seen in more frames nearest it (one per query frame
     and VOTE_CELL_PX square, prior-lifted 3D distance and ``colours [N,3]`` at the query pixels), the depth-mover
     test's included, and becomes dynamic only where its own static fit misses a pixel by more than
-    ``vote_flip_px``. A track seen once with no track seen in more than ``vote_short`` frames within
-    ``vote_once_gap_px`` of it takes instead, after the others are settled, the vote of every track seen in two
-    frames or more: at an image border the camera leaves, the nearest long tracks to a strip seen once may all lie
-    on a mover beside it, beyond the short static ones. ``once``: the tracks seen once that
-    :func:`rebuild_static` placed; ``queries [N,3]``."""
+    ``vote_flip_px``. A track seen once with none of those voters visible within ``vote_once_gap_px`` of it in
+    its query frame takes instead, after the others are settled, the vote of every track seen in two frames or
+    more (one per query frame and VOTE_CELL_PX square): at an image border the camera leaves, the nearest long
+    tracks to a strip seen once may all lie on a mover beside it, beyond the short static ones. ``once``: the
+    tracks seen once that :func:`rebuild_static` placed; ``queries [N,3]``; ``shape`` (H, W) of the frames."""
     cfg, K, uv = fits.cfg, fits.K, fits.uv
     qf = queries[:, 0].astype(np.int64)
     seen = vis.sum(1)
     voters = np.flatnonzero(seen > cfg.vote_short)
     voters = voters[cell_representatives(queries[voters], VOTE_CELL_PX)]
     short_multi = np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short))
-    later = once[far_from(once, np.flatnonzero(seen > cfg.vote_short), uv, vis, qf, cfg.vote_once_gap_px)]
+    later = once[far_from(once, voters, uv, vis, qf, cfg.vote_once_gap_px, shape)]
     short = np.union1d(np.setdiff1d(once, later), short_multi)
     colour = colours is not None and cfg.vote_colour_sigma > 0
     k = cfg.vote_k if colour else cfg.idw_k
     everyone = np.union1d(short, later)
     was = dynamic[everyone]
-    multi = np.flatnonzero(seen >= 2) if len(once) else once[:0]  # the voters of the tracks seen once by the tested
-    multi = multi[cell_representatives(queries[multi], VOTE_CELL_PX)] if len(multi) else multi
+
+    def tested_voters():  # the tracks seen in two frames or more, one per query frame and VOTE_CELL_PX square
+        multi = np.flatnonzero(seen >= 2)
+        return multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
     if len(short):
         dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
         # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
@@ -187,7 +190,8 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
         first = np.setdiff1d(once, later)
         bare = first[~vis[voters].any(0)[qf[first]]] if len(voters) else first
         if len(bare):
-            dynamic[bare] = vote_short(bare, multi, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
+            dynamic[bare] = vote_short(bare, tested_voters(), dynamic, uv, D, vis, qf, K, k, colours,
+                                       cfg.vote_colour_sigma)
         # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
         tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's
         was_short = was[np.searchsorted(everyone, short)]
@@ -201,18 +205,22 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
         if len(now_static):
             fits.fit(now_static, vis, xyz)
     if len(later):
-        dynamic[later] = vote_short(later, multi, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
+        dynamic[later] = vote_short(later, tested_voters(), dynamic, uv, D, vis, qf, K, k, colours,
+                                    cfg.vote_colour_sigma)
     if len(everyone):
         info["voted"] = {"tracks": int(len(everyone)), "changed": int((dynamic[everyone] != was).sum())}
     info["dynamic"] = int(dynamic.sum())
 
 
-def far_from(who, refs, uv, vis, qf, px: float) -> np.ndarray:
+def far_from(who, refs, uv, vis, qf, px: float, shape: tuple[int, int]) -> np.ndarray:
     """``[n]`` bool: of the tracks ``who`` [n] (indices), those with no track of ``refs`` (indices) visible in their
-    query frame within ``px`` pixels of their query pixel. uv [N,T,2] px, vis [N,T], qf [N] query frames."""
+    query frame within ``px`` pixels of their query pixel, positions rounded to their pixel (a distance transform
+    of each such frame's ``shape`` (H, W) image of the refs' pixels, 5x5 mask: a k-d tree over the refs of every
+    frame cost 3.5 s of a 120-frame run). uv [N,T,2] px, vis [N,T], qf [N] query frames."""
     out = np.zeros(len(who), bool)
-    if not np.isfinite(px):
+    if not np.isfinite(px) or not len(who):
         return out
+    H, W = shape
     refs_t = np.ascontiguousarray(vis[refs].T)
     for q in np.unique(qf[who]):
         sel = np.flatnonzero(qf[who] == q)
@@ -220,9 +228,12 @@ def far_from(who, refs, uv, vis, qf, px: float) -> np.ndarray:
         if not len(r):
             out[sel] = True
             continue
-        d, _ = cKDTree(uv[r, q].astype(np.float64)).query(uv[who[sel], q].astype(np.float64),
-                                                            distance_upper_bound=px + 1e-9)
-        out[sel] = d > px
+        x, y = nearest_pixel(uv[r, q], W, H)
+        free = np.full((H, W), 255, np.uint8)
+        free[y, x] = 0
+        dist = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_5)
+        qx, qy = nearest_pixel(uv[who[sel], q], W, H)
+        out[sel] = dist[qy, qx] > px
     return out
 
 

@@ -215,7 +215,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["depth_movers"] = int(movers.sum())
     if cfg.own_test:
         with tm("rebuild_static"):
-            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info)
+            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:])
     if cfg.static_outliers and p.offsets:
         with tm("static_outliers"):
             vis = drop_off_point(vis, qf, fits, dynamic, xyz, info)
