@@ -173,42 +173,41 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
     voters = np.flatnonzero(seen > cfg.vote_short)
     voters = voters[cell_representatives(queries[voters], VOTE_CELL_PX)]
     short_multi = np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short))
-    later = once[far_from(once, voters, uv, vis, qf, cfg.vote_once_gap_px, shape)]
-    short = np.union1d(np.setdiff1d(once, later), short_multi)
+    far = far_from(once, voters, uv, vis, qf, cfg.vote_once_gap_px, shape)
+    first, later = once[~far], once[far]  # the tracks seen once voted with the short ones / after them
+    short = np.union1d(first, short_multi)
     colour = colours is not None and cfg.vote_colour_sigma > 0
     k = cfg.vote_k if colour else cfg.idw_k
-    everyone = np.union1d(short, later)
-    was = dynamic[everyone]
+    was = dynamic.copy()  # the verdicts before the vote
 
     def tested_voters():  # the tracks seen in two frames or more, one per query frame and VOTE_CELL_PX square
         multi = np.flatnonzero(seen >= 2)
         return multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
+
     if len(short):
         dynamic[short] = vote_short(short, voters, dynamic, uv, D, vis, qf, K, k, colours, cfg.vote_colour_sigma)
         # in a frame that no track seen in more than vote_short frames reaches (a video hardly longer), the
         # tracks seen once take the vote of those seen in two or more, as with vote_short 1
-        first = np.setdiff1d(once, later)
         bare = first[~vis[voters].any(0)[qf[first]]] if len(voters) else first
         if len(bare):
             dynamic[bare] = vote_short(bare, tested_voters(), dynamic, uv, D, vis, qf, K, k, colours,
                                        cfg.vote_colour_sigma)
         # ... made dynamic only when its own static fit misses a pixel by more than vote_flip_px
         tested = seen[short] >= 2  # a track seen once has no fit; its point is the rebuild's
-        was_short = was[np.searchsorted(everyone, short)]
-        flip = short[dynamic[short] & ~was_short & tested]
+        flip = short[dynamic[short] & ~was[short] & tested]
         if len(flip) and cfg.vote_flip_px > 0:
             worst = fits.test(flip, vis)[2]
             dynamic[flip[worst <= cfg.vote_flip_px]] = False
         # tracks the vote made static get their static point now: the off-point observations are judged
         # against it next
-        now_static = short[~dynamic[short] & was_short & tested]
+        now_static = short[~dynamic[short] & was[short] & tested]
         if len(now_static):
             fits.fit(now_static, vis, xyz)
     if len(later):
         dynamic[later] = vote_short(later, tested_voters(), dynamic, uv, D, vis, qf, K, k, colours,
                                     cfg.vote_colour_sigma)
-    if len(everyone):
-        info["voted"] = {"tracks": int(len(everyone)), "changed": int((dynamic[everyone] != was).sum())}
+    if len(short) or len(later):
+        info["voted"] = {"tracks": int(len(short) + len(later)), "changed": int((dynamic != was).sum())}
     info["dynamic"] = int(dynamic.sum())
 
 
