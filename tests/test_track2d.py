@@ -459,6 +459,42 @@ def test_flow_patch_option_reaches_the_tracker(capsys):
     assert _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz"])).flow_patch == (4, 2)
     cfg = _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-median", "3"]))
     assert make_tracker(cfg, verbose=False).config.median_radius == 3
+    cfg = _track_config(build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-refind-patch-diff", "4"]))
+    assert make_tracker(cfg, verbose=False).config.refind_patch_diff == 4.0
     with pytest.raises(SystemExit):
         build_parser().parse_args(["track2d", "x", "--out", "t.npz", "--flow-patch", "4"])
     assert "SIZE,STRIDE" in capsys.readouterr().err
+
+
+def test_patches_ignore_an_even_change_of_brightness_and_see_a_shift():
+    from trackingworld.tracking2d.flow_tracker import patch_offsets, sample_patches
+
+    frames, _, _ = occluded_video()
+    img = frames[0].astype(np.float32)
+    offs = patch_offsets(2)
+    assert offs.shape == (25, 2)
+    pts = np.array([[30.0, 10.0], [50.5, 40.25]], np.float32)
+    a = sample_patches(img, pts, offs)
+    np.testing.assert_allclose(sample_patches(img + 20.0, pts, offs), a, atol=1e-3)  # brightness: no difference
+    np.testing.assert_allclose(a.mean(1), 0.0, atol=1e-3)
+    shifted = np.abs(sample_patches(img, pts + np.float32([3.0, 0.0]), offs) - a).mean((1, 2))
+    assert (shifted > 4.0).all()  # 3 px off the point: another patch, beyond the tolerance measured in the docs
+
+
+def test_a_point_found_again_must_look_like_its_query_patch():
+    frames, shift, left = occluded_video()
+    xs = np.arange(24.0, 40.0, 2.0)
+    q = np.stack([np.zeros_like(xs), xs, np.full_like(xs, 32.0)], 1)
+    truth = xs[:, None] + shift[None]
+    hidden = (truth >= left[None] - 1) & (truth < left[None] + 24 + 1)
+    after = np.arange(20)[None] > np.where(hidden, np.arange(20)[None], -1).max(1, keepdims=True) + 1
+    assert FlowTrackerConfig().refind_patch_diff == 0.0  # off by default
+    found = {}
+    for tol in (0.0, 4.0, 1e-3):
+        r = FlowTracker(FlowTrackerConfig(refind_patch_diff=tol)).track(frames, q)
+        found[tol] = r.visible[after].mean()
+        if tol == 4.0:  # the true finds pass the test, where they were found
+            err = np.abs(r.tracks[..., 0] - truth)[after & r.visible]
+            assert np.median(err) < 0.5 and err.max() < 1.5
+    assert found[0.0] > 0.9 and found[4.0] > 0.9
+    assert found[1e-3] == 0.0  # no patch matches that closely: nothing is found again after the gap

@@ -69,6 +69,10 @@ class Track2DConfig:
     # 95.21 but world accuracy 81.54 -> 81.34, at 1.6-1.8x the tracking time, so off by default
     # (benchmarks/results/scenes_median.md against scenes_depth_movers.md; docs/tracking2d.md, stop 44)
     flow_median: int = 0
+    # a point found again after a gap must look like its query frame's 5x5 patch within this (grey levels, mean
+    # absolute difference, patch means removed; tracking2d.flow_tracker). Off (0): static kept and world accuracy
+    # up on eight scenes, but missed movers' recall down (docs/tracking2d.md, stop 48)
+    flow_refind_patch_diff: float = 0.0
 
 
 @dataclass

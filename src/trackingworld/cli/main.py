@@ -184,6 +184,10 @@ def _track_args(p) -> None:
     g.add_argument("--flow-median", type=int, default=Track2DConfig().flow_median, metavar="PX",
                    help="each optical flow through a weighted median of this radius guided by the frame's colours, "
                         "which puts motion boundaries back on colour edges (0: off; needs opencv-contrib)")
+    g.add_argument("--flow-refind-patch-diff", type=float, default=Track2DConfig().flow_refind_patch_diff,
+                   metavar="GREY", help="a point found again after a gap must look like its 5x5 patch in its query "
+                                        "frame within GREY grey levels (mean absolute difference, patch means "
+                                        "removed), or it stays hidden (0: off, the default)")
 
 
 def _track_config(a):
@@ -195,7 +199,7 @@ def _track_config(a):
         query_stride=a.query_stride, first_frame_only=a.first_frame_only, cover_radius=a.cover_radius,
         min_component=a.min_component, dense_mode=a.dense_mode, upsampler=a.upsampler, flow_preset=a.flow_preset,
         flow_patch=a.flow_patch, flow_skip_stride=a.flow_skip_stride, flow_drag_px=a.flow_drag_px,
-        flow_median=a.flow_median)
+        flow_median=a.flow_median, flow_refind_patch_diff=a.flow_refind_patch_diff)
 
 
 def cmd_track2d(a) -> int:

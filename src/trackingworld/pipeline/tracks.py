@@ -19,6 +19,7 @@ def make_tracker(cfg: Track2DConfig, verbose: bool = True, device: str = "cpu"):
         return FlowTracker(FlowTrackerConfig(preset=cfg.flow_preset, patch_size=cfg.flow_patch[0],
                                              patch_stride=cfg.flow_patch[1], skip_stride=cfg.flow_skip_stride,
                                              drag_abs_px=cfg.flow_drag_px, median_radius=cfg.flow_median,
+                                             refind_patch_diff=cfg.flow_refind_patch_diff,
                                              verbose=verbose))
     if cfg.tracker == "cotracker3":
         from trackingworld.tracking2d.cotracker import CoTrackerConfig, CoTrackerTracker

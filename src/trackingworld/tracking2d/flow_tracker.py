@@ -76,6 +76,12 @@ class FlowTrackerConfig:
     # an observed point whose colour has left its query colour by more than this (grey levels, max over RGB,
     # sigma-1 blur) has slipped off its surface point and is lost, so that a fresh track takes its place; 0: off
     max_query_colour_diff: float = 25.0
+    # a point found again after a gap (re-anchored or re-found) whose (2 patch_radius + 1)^2 patch of sigma-1 blurred
+    # colour differs from its patch in the query frame by more than this (grey levels: mean absolute difference over
+    # the patch and RGB, each patch's mean colour removed) stays in its gap. Off (0) by default: it keeps static
+    # tracks on their point but costs the missed movers' recall (docs/tracking2d.md, stop 48)
+    refind_patch_diff: float = 0.0
+    patch_radius: int = 2
     # flows over this many frames between its multiples re-place the points observed throughout (drift); 0: off
     skip_stride: int = 4
     skip_max_shift_px: float = 2.0  # ... unless they move a point further than this from its chained position
@@ -180,6 +186,20 @@ def blurred_frames(frames: np.ndarray, sigma: float = 1.0) -> np.ndarray:
     """``frames [T,H,W,3]`` uint8 -> the same blurred by a Gaussian of ``sigma`` px, uint8: the colours the colour
     checks compare (here, and the lifting's photometric static test, ``optim.photo_static``)."""
     return np.stack([cv2.GaussianBlur(f, (0, 0), sigma) for f in frames])
+
+
+def patch_offsets(radius: int) -> np.ndarray:
+    """``[(2 radius + 1)^2, 2]`` float32: the pixel offsets (x, y) of a square patch of half-side ``radius``."""
+    r = np.arange(-radius, radius + 1, dtype=np.float32)
+    return np.stack(np.meshgrid(r, r), -1).reshape(-1, 2)
+
+
+def sample_patches(img: np.ndarray, pts: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """``[M,P,C]`` float32: ``img [H,W,C]`` bilinearly sampled at ``pts [M,2]`` plus each of ``offsets [P,2]`` px,
+    each patch's mean colour removed (an even change of brightness does not count)."""
+    M, P = len(pts), len(offsets)
+    v = sample_image(img, (pts[:, None, :] + offsets[None]).reshape(-1, 2)).reshape(M, P, -1).astype(np.float32)
+    return v - v.mean(1, keepdims=True)
 
 
 def sample_flow(flow: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -340,6 +360,16 @@ class FlowTracker:
         drift_check = c.max_query_colour_diff > 0
         # the query colour: what a point found again must match, and what an observed point must stay near
         c_query = sample_image(video.blur[t0], p0).astype(np.float32) if refind or drift_check else None
+        offs = patch_offsets(c.patch_radius) if c.refind_patch_diff > 0 else None
+        patch_query = sample_patches(video.blur[t0], p0, offs) if offs is not None else None
+
+        def looks_like_query(who: np.ndarray, at: np.ndarray, frame: int) -> np.ndarray:
+            """[len(who)] bool: the points ``who``'s patches at ``at [len(who),2]`` in ``frame`` are within
+            ``refind_patch_diff`` of their query patches (all true when the test is off)."""
+            if offs is None or not len(who):
+                return np.ones(len(who), bool)
+            d = np.abs(sample_patches(video.blur[frame], at, offs) - patch_query[who]).mean((1, 2))
+            return d <= c.refind_patch_diff
         s = c.skip_stride if len(video.skip_fwd) else 0
         skip_a, skip_b = (video.skip_fwd, video.skip_bwd) if direction == 1 else (video.skip_bwd, video.skip_fwd)
         # the last multiple of s passed, and every point's position there
@@ -384,6 +414,7 @@ class FlowTracker:
             back = np.flatnonzero(ok & in_gap)
             if c.relocate_win and back.size:
                 q[back], good = self._relocate(video, t0, p0[back], t + direction, q[back])
+                good &= looks_like_query(back, q[back], t + direction)
                 ok[back[~good]] = False
                 moved[back] = True
             if refind:
@@ -395,6 +426,7 @@ class FlowTracker:
                                              c.refind_win)
                     c1 = sample_image(video.blur[t + direction], r).astype(np.float32)
                     good &= np.abs(c_query[miss] - c1).max(1) < c.max_colour_diff
+                    good &= looks_like_query(miss, r, t + direction)
                     q[miss[good]] = r[good]
                     ok[miss[good]] = True
                     moved[miss[good]] = True
