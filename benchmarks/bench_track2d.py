@@ -36,6 +36,7 @@ CONFIGS = {
     "grid+convex, r=0 (rounding)": {"cover_radius": 0.0},
     "grid+convex, w/o T.E.F": {"first_frame_only": True},
     "grid+convex, query stride 10": {"query_stride": 10},
+    "grid+convex, re-find patch test 4": {"flow_refind_patch_diff": 4.0},
 }
 
 
