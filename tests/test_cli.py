@@ -158,3 +158,23 @@ def test_video_input(tiny_scene, tmp_path):
     out = tmp_path / "res"
     assert main(["run", str(video), "--out", str(out), "--quiet", "--frame-stride", "2", "--method", "baseline"]) == 0
     assert load_result(out).num_frames == 5
+
+
+def test_flow_tracker_settings_out_of_range_are_refused_before_any_work(tmp_path, capsys):
+    from trackingworld.cli.main import main
+    from trackingworld.config import RunConfig, Track2DConfig
+    from trackingworld.errors import InputError
+    from trackingworld.pipeline.run import run
+
+    for bad in (dict(flow_refind_patch_diff=-1.0), dict(flow_refind_patch_diff=float("nan")),
+                dict(flow_drag_px=-0.5), dict(flow_median=-3), dict(flow_skip_stride=-4)):
+        field = next(iter(bad))
+        with pytest.raises(InputError, match=f"{field} .*: 0 \\(off\\) or a positive number"):
+            run(RunConfig(track2d=Track2DConfig(**bad)), tmp_path / "never")
+    assert not (tmp_path / "never").exists()
+    # the CLI says so in one line, before it looks for the (missing) video
+    code = main(["track2d", str(tmp_path / "missing.mp4"), "--out", str(tmp_path / "t.npz"),
+                 "--flow-refind-patch-diff", "-1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "flow_refind_patch_diff -1.0" in err[0]
+    assert not (tmp_path / "t.npz").exists()

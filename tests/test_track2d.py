@@ -150,7 +150,10 @@ def test_flows_over_the_skip_stride_bound_the_drift_of_chained_steps():
     np.testing.assert_allclose(errors[4][1], -0.1 * ((12 - t) % 4), atol=1e-4)
 
 
-def test_flow_tracker_finds_points_again_after_an_occluder_passes():
+def occluded_points():
+    """:func:`occluded_video` with queries on background points at frame 0 that the square hides for a while:
+    frames, queries [N,3], the points' true x [N,T], the square's left edge [T], and [N,T] the frames after each
+    one's last hidden frame + 1."""
     frames, shift, left = occluded_video()
     xs = np.arange(24.0, 40.0, 2.0)
     q = np.stack([np.zeros_like(xs), xs, np.full_like(xs, 32.0)], 1)
@@ -158,6 +161,11 @@ def test_flow_tracker_finds_points_again_after_an_occluder_passes():
     hidden = (truth >= left[None] - 1) & (truth < left[None] + 24 + 1)
     assert hidden.any(1).all() and not hidden[:, -3:].any()  # each is hidden for a while, then seen again
     after = np.arange(20)[None] > np.where(hidden, np.arange(20)[None], -1).max(1, keepdims=True) + 1
+    return frames, q, truth, left, after
+
+
+def test_flow_tracker_finds_points_again_after_an_occluder_passes():
+    frames, q, truth, left, after = occluded_points()
     r = FlowTracker().track(frames, q)
     assert not r.visible[(truth >= left[None] + 1) & (truth < left[None] + 23)].any()  # well inside the square
     err = np.abs(r.tracks[..., 0] - truth)
@@ -482,12 +490,7 @@ def test_patches_ignore_an_even_change_of_brightness_and_see_a_shift():
 
 
 def test_a_point_found_again_must_look_like_its_query_patch():
-    frames, shift, left = occluded_video()
-    xs = np.arange(24.0, 40.0, 2.0)
-    q = np.stack([np.zeros_like(xs), xs, np.full_like(xs, 32.0)], 1)
-    truth = xs[:, None] + shift[None]
-    hidden = (truth >= left[None] - 1) & (truth < left[None] + 24 + 1)
-    after = np.arange(20)[None] > np.where(hidden, np.arange(20)[None], -1).max(1, keepdims=True) + 1
+    frames, q, truth, _, after = occluded_points()
     assert FlowTrackerConfig().refind_patch_diff == 0.0  # off by default
     found = {}
     for tol in (0.0, 4.0, 1e-3):

@@ -208,8 +208,9 @@ def cmd_track2d(a) -> int:
     from trackingworld.config import InputConfig
     from trackingworld.io.atomic import write_npz
     from trackingworld.pipeline.inputs import load_inputs
-    from trackingworld.pipeline.tracks import track_video
+    from trackingworld.pipeline.tracks import check_track2d, track_video
 
+    check_track2d(_track_config(a))
     inp = load_inputs(InputConfig(input=a.input, max_frames=a.max_frames, frame_stride=a.frame_stride,
                                   resize=a.resize), verbose=not a.quiet)
     tr = track_video(inp.frames, _track_config(a), None, a.device, verbose=not a.quiet)

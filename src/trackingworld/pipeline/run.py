@@ -17,7 +17,7 @@ from trackingworld.io.result import CONFIG_FILE, Result, save_result
 from trackingworld.memory import guess_tracks, memory_warning
 from trackingworld.pipeline.baseline import run_baseline
 from trackingworld.pipeline.inputs import Inputs, load_inputs
-from trackingworld.pipeline.tracks import track_video
+from trackingworld.pipeline.tracks import check_track2d, track_video
 from trackingworld.pipeline.world import check_optim, run_trackingworld
 from trackingworld.priors.resolve import resolve_priors, tracks_key
 from trackingworld.tracking2d.base import TrackResult
@@ -65,6 +65,7 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
             raise InputError("--device cuda: this torch build has no CUDA device (install a CUDA build of torch)")
     if cfg.method == "trackingworld":
         check_optim(cfg.optim)  # before the 2D tracks and the priors, which take minutes
+    check_track2d(cfg.track2d)
     if cfg.track2d.tracker == "file" and cfg.inputs.resize:
         raise InputError(f"{cfg.track2d.tracks_file}: precomputed tracks are at the input resolution; drop --resize")
     timings: dict[str, float] = {}

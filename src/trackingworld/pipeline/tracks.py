@@ -14,6 +14,17 @@ from trackingworld.tracking2d.flow_tracker import FlowTracker, FlowTrackerConfig
 from trackingworld.tracking2d.upsample import UpsampleConfig
 
 
+def check_track2d(cfg: Track2DConfig) -> None:
+    """InputError (one line, naming the field) for a flow tracker setting out of its range, before any work."""
+    for name in ("flow_drag_px", "flow_refind_patch_diff"):
+        v = getattr(cfg, name)
+        if not (np.isfinite(v) and v >= 0):
+            raise InputError(f"{name} {v}: 0 (off) or a positive number")
+    for name in ("flow_median", "flow_skip_stride"):
+        if getattr(cfg, name) < 0:
+            raise InputError(f"{name} {getattr(cfg, name)}: 0 (off) or a positive number")
+
+
 def make_tracker(cfg: Track2DConfig, verbose: bool = True, device: str = "cpu"):
     if cfg.tracker == "flow":
         return FlowTracker(FlowTrackerConfig(preset=cfg.flow_preset, patch_size=cfg.flow_patch[0],
