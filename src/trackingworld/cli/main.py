@@ -210,10 +210,11 @@ def cmd_track2d(a) -> int:
     from trackingworld.pipeline.inputs import load_inputs
     from trackingworld.pipeline.tracks import check_track2d, track_video
 
-    check_track2d(_track_config(a))
+    cfg = _track_config(a)
+    check_track2d(cfg)  # before the video is read
     inp = load_inputs(InputConfig(input=a.input, max_frames=a.max_frames, frame_stride=a.frame_stride,
                                   resize=a.resize), verbose=not a.quiet)
-    tr = track_video(inp.frames, _track_config(a), None, a.device, verbose=not a.quiet)
+    tr = track_video(inp.frames, cfg, None, a.device, verbose=not a.quiet)
     q = tr.queries.copy()
     q[:, 1:] = inp.to_input_pixels(tr.queries[:, 1:])
     write_npz(a.out, tracks=inp.to_input_pixels(tr.tracks), visible=tr.visible,

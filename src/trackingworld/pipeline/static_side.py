@@ -8,6 +8,7 @@ Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, poses ca
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cache
 
 import cv2
 import numpy as np
@@ -180,6 +181,7 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
     k = cfg.vote_k if colour else cfg.idw_k
     was = dynamic.copy()  # the verdicts before the vote
 
+    @cache  # asked for by the bare frames' vote and the late one: made once
     def tested_voters():  # the tracks seen in two frames or more, one per query frame and VOTE_CELL_PX square
         multi = np.flatnonzero(seen >= 2)
         return multi[cell_representatives(queries[multi], VOTE_CELL_PX)]
