@@ -27,7 +27,8 @@ reuse_freed_memory()  # the benchmarks run the pipeline in-process with the CLI'
 
 # the optimisation's stages in timings.json (what "optimisation [s]" adds up)
 OPT_STAGES = ("labels", "stage1", "stage2", "prior_field", "classify", "rebuild_static", "depth_movers",
-              "static_outliers", "static_refit", "stage3", "video_depth", "photo_static")
+              "static_outliers", "static_refit", "stage3", "video_depth", "photo_static",
+              "occluded_static")
 
 
 def scratch_dir(prefix: str, keep: bool = False) -> Path:

@@ -270,6 +270,16 @@ class OptimConfig:
     # in some frame; 0: off (twenty scenes at 4 px: static kept 95.8 -> 96.1 but `default` 10's missed mover, which
     # passes near a masked one, 95.0 -> 79.5 bg-mover recall; docs/results.md, stop 46)
     photo_static_near_px: float = 0.0
+    # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
+    # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
+    # of at least 3 frames where the point is in view, and at least occluded_static_frames of its
+    # observations are off the point in frames where the video depth there is less than occluded_static_depth times
+    # the point's (a nearer surface hides it: the mover the tracker followed). It is then that point, seen where it
+    # was on it (optim.occluded_static; 0: off). Twenty synthetic scenes: static kept ... (docs/lifting.md)
+    occluded_static_frames: int = 2
+    occluded_static_frac: float = 0.8
+    occluded_static_px: float = 2.0
+    occluded_static_depth: float = 0.9
     static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.

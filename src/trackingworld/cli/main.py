@@ -361,6 +361,18 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--photo-static-near", type=float, default=d.photo_static_near_px, metavar="PX",
                    help="with --photo-static: the tracks of the masks' static region seen within this many px of the "
                         "masks are tested too (0: only the masks' dynamic and ambiguous tracks)")
+    g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
+                   help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
+                        "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
+                        "surface hides the point (0: off)")
+    g.add_argument("--occluded-static-frac", type=float, default=d.occluded_static_frac, metavar="FRAC",
+                   help="with --occluded-static: the share of the in-view frames (at least 3) where the track "
+                        "must be on the point")
+    g.add_argument("--occluded-static-px", type=float, default=d.occluded_static_px, metavar="PX",
+                   help="with --occluded-static: on the point means within this many px of its projection")
+    g.add_argument("--occluded-static-depth", type=float, default=d.occluded_static_depth, metavar="RATIO",
+                   help="with --occluded-static: the point is hidden where the video depth is less than this times "
+                        "the point's")
     g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
                    help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
                         "optimised static points' z / prior (default); --no-prior-field: the raw prior")
@@ -405,6 +417,8 @@ def _optim_config(a):
         vote_once_gap_px=a.vote_once_gap,
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
+        occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
+        occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, dynamic_cell=a.dynamic_cell, cell_cap=a.cell_cap, verbose=not a.quiet,
         **{k: getattr(a, k) for k in ABLATIONS})

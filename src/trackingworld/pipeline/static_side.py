@@ -18,6 +18,7 @@ from trackingworld.config import OptimConfig
 from trackingworld.geometry import nearest_pixel, transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, mask_regions
+from trackingworld.optim.occluded_static import static_behind_occluders
 from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
 from trackingworld.optim.static_tests import (
     fit_static_points,
@@ -275,6 +276,34 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
                                              depth_scales(cfg.photo_static_range))
     idx = cand[static]
     info["photo_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
+    if not len(idx):
+        return uv, vis, idx
+    uv, vis = uv.copy(), vis.copy()
+    uv[idx], vis[idx] = pix, seen
+    dynamic[idx] = False
+    xyz[idx] = X[static][:, None].astype(xyz.dtype)
+    info["dynamic"] = int(dynamic.sum())
+    return uv, vis, idx
+
+
+def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xyz,
+                     info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(not in the paper) Every dynamic track that is its query pixel's static point wherever that point is in view,
+    and strayed where a nearer surface hid it (``optim.occluded_static``; the consistent video depth ``depth
+    [T,h,w]`` metres gives the query pixels' depths and what hides them), becomes that static point: ``dynamic``
+    and ``xyz`` updated in place, its 2D track the point's projection and its visibility the query frame and the
+    in-view frames where it was on the point. Returns (uv, vis, the tracks changed); copies when any changed."""
+    cand = np.flatnonzero(dynamic)
+    if cfg.occluded_static_frames <= 0 or not len(cand):
+        return uv, vis, np.zeros(0, np.int64)
+    H, W = depth.shape[1:]
+    x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
+    static, X, pix, seen = static_behind_occluders(uv[cand], vis[cand], qf[cand], depth[qf[cand], y, x], poses, K,
+                                                   depth, cfg.occluded_static_px, cfg.occluded_static_frac,
+                                                   min_hidden=cfg.occluded_static_frames,
+                                                   in_front=cfg.occluded_static_depth)
+    idx = cand[static]
+    info["occluded_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
     if not len(idx):
         return uv, vis, idx
     uv, vis = uv.copy(), vis.copy()

@@ -40,6 +40,7 @@ from trackingworld.pipeline.static_side import (
     StaticFits,
     classify_masked,
     drop_off_point,
+    occlusion_rescue,
     photo_rescue,
     rebuild_static,
     vote_short_tracks,
@@ -242,6 +243,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # that their new points move neither stage 3 nor the video depth (run before stage 3, where they
             # joined the static tracks and left the dynamic ones: default seed 2, dynamic world accuracy 89.0 -> 87.7)
             uv, vis, _ = photo_rescue(uv, vis, qf, Dfit, poses, K, frames, masks, cfg, dynamic, xyz, info, labels)
+    if cfg.occluded_static_frames > 0:
+        with tm("occluded_static"):
+            # dynamic tracks that are static points the tracker followed onto a mover passing in front of them; last
+            # too, for the same reason, and it reads the video depth
+            uv, vis, _ = occlusion_rescue(uv, vis, qf, depth, poses, K, cfg, dynamic, xyz, info)
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "visible": vis, "tracks_2d": uv, "info": info}
 
@@ -270,6 +276,12 @@ def check_optim(o: OptimConfig) -> None:
                          f"{o.photo_static_near_px} / photo_static_range {o.photo_static_range}: the colour "
                          "tolerance is 0 (off) or more, the share from 0 to 1, the frames 1 or more, the distance 0 or "
                          "more, the depth range from 0 to below 1")
+    if (o.occluded_static_frames < 0 or not 0 <= o.occluded_static_frac <= 1 or not o.occluded_static_px > 0
+            or not 0 < o.occluded_static_depth <= 1):
+        raise InputError(f"occluded_static_frames {o.occluded_static_frames} / occluded_static_frac "
+                         f"{o.occluded_static_frac} / occluded_static_px {o.occluded_static_px} / "
+                         f"occluded_static_depth {o.occluded_static_depth}: the frames are 0 (off) or more, the share "
+                         "from 0 to 1, the distance over 0 px, the depth ratio over 0 and at most 1")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
