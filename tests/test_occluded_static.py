@@ -113,3 +113,19 @@ def test_the_cli_flags_reach_the_config():
             cfg.occluded_static_depth) == (3, 0.7, 1.5, 0.8)
     d = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     assert d.occluded_static_frames == OptimConfig().occluded_static_frames == 2
+
+
+def test_the_photometric_test_skips_the_frames_where_the_point_is_hidden():
+    """The photometric test (``optim.photo_static``) with the video depth: a wall point behind the box in frames 3-5
+    shows the box's colour there; those frames are not tested, so it passes, and fails when they are."""
+    from trackingworld.optim.photo_static import static_hypothesis
+
+    poses, depth = _setup()
+    frames = np.full((T, H, W, 3), 100, np.uint8)
+    frames[3:6, :, 20:45] = (200, 50, 50)
+    open_ = np.ones((T, H, W), bool)
+    args = (np.array([[33.0, 20.0]]), np.array([WALL]), np.zeros(1, np.int64), poses, K, frames, open_)
+    assert not static_hypothesis(*args)[0][0]  # 4 of 7 frames match
+    static, _, _, seen = static_hypothesis(*args, depth=depth)
+    assert static[0] and seen[0].tolist() == [True, True, True, False, False, False, True, True]
+    assert not static_hypothesis(*args, depth=depth, in_front=0.3)[0][0]  # the box is not nearer than 0.3x

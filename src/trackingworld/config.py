@@ -270,6 +270,9 @@ class OptimConfig:
     # in some frame; 0: off (twenty scenes at 4 px: static kept 95.8 -> 96.1 but `default` 10's missed mover, which
     # passes near a masked one, 95.0 -> 79.5 bg-mover recall; docs/results.md, stop 46)
     photo_static_near_px: float = 0.0
+    # ... and the frames where the consistent video depth at the projection is less than occluded_static_depth times the
+    # point's (a nearer surface hides it) are not tested (False: they are; docs/lifting.md, stop 49)
+    photo_static_hidden: bool = True
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least 3 frames where the point is in view, and at least occluded_static_frames of its

@@ -361,6 +361,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--photo-static-near", type=float, default=d.photo_static_near_px, metavar="PX",
                    help="with --photo-static: the tracks of the masks' static region seen within this many px of the "
                         "masks are tested too (0: only the masks' dynamic and ambiguous tracks)")
+    g.add_argument("--photo-static-hidden", action=argparse.BooleanOptionalAction, default=d.photo_static_hidden,
+                   help="with --photo-static: the frames where a nearer surface of the video depth hides the point "
+                        "are not tested (default); --no-photo-static-hidden: they are")
     g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
                    help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
@@ -417,6 +420,7 @@ def _optim_config(a):
         vote_once_gap_px=a.vote_once_gap,
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
+        photo_static_hidden=a.photo_static_hidden,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,

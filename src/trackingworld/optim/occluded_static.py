@@ -83,7 +83,9 @@ def _look(X: np.ndarray, uv_t: np.ndarray, depth_t: np.ndarray, w2c_t: np.ndarra
     p, _ = project(c, K)
     z = c[:, 2]
     inside = (z > 0) & (p[:, 0] >= -0.5) & (p[:, 0] <= W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= H - 0.5)
-    x, y = nearest_pixel(np.nan_to_num(p), W, H)
-    hidden = inside & (depth_t[y, x] < in_front * z)
+    hidden = np.zeros(len(X), bool)
+    k = np.flatnonzero(inside)
+    x, y = nearest_pixel(p[k], W, H)
+    hidden[k] = depth_t[y, x] < in_front * z[k]
     on = np.linalg.norm(p - uv_t, axis=-1) <= px
     return on, inside & ~hidden, hidden

@@ -57,16 +57,20 @@ def near_masks(uv: np.ndarray, vis: np.ndarray, masks: np.ndarray, px: float) ->
 
 
 def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndarray, w2c_t: np.ndarray,
-          K: np.ndarray, grey: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          K: np.ndarray, grey: float, depth_t: np.ndarray | None = None,
+          in_front: float = 0.9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points ``X [n,3]`` seen by one camera (``w2c_t [4,4]``, blurred frame ``blur_t [H,W,3]``, open region
-    ``open_t [H,W]``): (pixels [n,2] float32; tested [n] bool: in front of the camera, in the image and in the open
-    region; matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB)."""
+    ``open_t [H,W]``): (pixels [n,2] float32; tested [n] bool: in front of the camera, in the image, in the open
+    region and, with the frame's depth ``depth_t [H,W]`` metres, not hidden (that depth at least ``in_front`` times
+    the point's); matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB)."""
     H, W = open_t.shape
     uv, z = project(transform(w2c_t, X), K, eps=1e-9)
     uv = uv.astype(np.float32)
     tested = (z > 1e-9) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
     x, y = nearest_pixel(uv, W, H)
     tested &= open_t[y, x]
+    if depth_t is not None:
+        tested &= depth_t[y, x] >= in_front * z
     idx = np.flatnonzero(tested)
     matched = np.zeros(len(X), bool)
     matched[idx] = np.abs(sample_image(blur_t, uv[idx]).astype(np.float32) - colour[idx]).max(1) <= grey
@@ -74,15 +78,17 @@ def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndar
 
 
 def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, open_: np.ndarray,
-           w2c: np.ndarray, K: np.ndarray, grey: float) -> tuple[np.ndarray, np.ndarray]:
+           w2c: np.ndarray, K: np.ndarray, grey: float, depth: np.ndarray | None = None,
+           in_front: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
     """(frames tested [n], frames matched [n]) of the static points ``X [n,3]`` (query frames ``qf [n]``, query
     colours ``colour [n,3]`` float32) over every frame but the query frame, strided to at most MAX_TESTED_FRAMES
-    (:func:`_look`)."""
+    (:func:`_look`; ``depth [T,H,W]``: the frames where a point is hidden are not tested)."""
     tested = np.zeros(len(X), np.int32)
     matched = np.zeros(len(X), np.int32)
     T = len(open_)
     for t in range(0, T, -(-T // MAX_TESTED_FRAMES)):
-        _, ok, same = _look(X, colour, blur[t], open_[t], w2c[t], K, grey)
+        _, ok, same = _look(X, colour, blur[t], open_[t], w2c[t], K, grey, None if depth is None else depth[t],
+                            in_front)
         other = qf != t
         tested += ok & other
         matched += same & other
@@ -101,7 +107,8 @@ def query_colours(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndar
 
 def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
                       blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, frac: float = 0.8,
-                      min_frames: int = 3, scales: np.ndarray | None = None):
+                      min_frames: int = 3, scales: np.ndarray | None = None, depth: np.ndarray | None = None,
+                      in_front: float = 0.9):
     """Which tracks are static points by their colours (module docstring).
 
     ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
@@ -110,7 +117,9 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     masks' sure-static region: ``optim.labels.mask_regions`` with MASK_MARGIN_PX); ``grey``: colour tolerance
     (grey levels, max over RGB); ``frac``, ``min_frames``: the share of at least that many tested frames (every
     frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales
-    tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept.
+    tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept; ``depth [T,H,W]``
+    metres (the consistent video depth; None: not read): a frame where it is less than ``in_front`` times the
+    point's depth at the projection hides the point there, and is not tested.
 
     Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
     float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
@@ -130,7 +139,7 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     share = np.zeros(n)
     count = np.zeros(n, np.int32)
     for s in scales:
-        tested, matched = _tally(points(np.full(n, s)), qf, colour, blur, open_, w2c, K, grey)
+        tested, matched = _tally(points(np.full(n, s)), qf, colour, blur, open_, w2c, K, grey, depth, in_front)
         f = matched / np.maximum(tested, 1)
         better = f + 1e-4 * matched > best
         best[better] = (f + 1e-4 * matched)[better]
@@ -141,7 +150,8 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     pix = np.zeros((len(keep), T, 2), np.float32)
     seen = np.zeros((len(keep), T), bool)
     for t in range(T):
-        pix[:, t], _, seen[:, t] = _look(X[keep], colour[keep], blur[t], open_[t], w2c[t], K, grey)
+        pix[:, t], _, seen[:, t] = _look(X[keep], colour[keep], blur[t], open_[t], w2c[t], K, grey,
+                                         None if depth is None else depth[t], in_front)
     seen[np.arange(len(keep)), qf[keep]] = True
     pix[np.arange(len(keep)), qf[keep]] = uv_q[keep]
     return static, X, pix, seen

@@ -253,10 +253,13 @@ def drop_off_point(vis, qf, fits: StaticFits, dynamic, xyz, info: dict) -> np.nd
 
 
 def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dynamic, xyz, info: dict,
-                 labels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 labels: np.ndarray | None = None,
+                 depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(not in the paper) Every dynamic track (with ``labels [N]``: of those the masks did not call static) whose
     static hypothesis holds in the images (``optim.photo_static``,
-    the depth ``D [N,T]`` at its query frame, ``frames [T,h,w,3]`` uint8, ``masks [T,h,w]``) becomes that static
+    the depth ``D [N,T]`` at its query frame, ``frames [T,h,w,3]`` uint8, ``masks [T,h,w]``; with the consistent
+    video depth ``depth [T,h,w]`` metres and ``cfg.photo_static_hidden``, the frames where a nearer surface hides
+    the point are not tested) becomes that static
     point: ``dynamic`` and ``xyz`` updated in place, its 2D track the point's projection and its visibility the
     frames that matched. Returns (uv, vis, the tracks changed); uv and vis are copies when any changed."""
     # the masks' static region is left out: there a mover the masks missed, sliding slowly over a smooth texture,
@@ -273,7 +276,8 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
     static, X, pix, seen = static_hypothesis(uv[cand, qf[cand]], D[cand, qf[cand]].astype(np.float64), qf[cand],
                                              poses, K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
                                              cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
-                                             depth_scales(cfg.photo_static_range))
+                                             depth_scales(cfg.photo_static_range),
+                                             depth if cfg.photo_static_hidden else None, cfg.occluded_static_depth)
     idx = cand[static]
     info["photo_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
     if not len(idx):

@@ -242,7 +242,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # dynamic tracks that are static points dragged off by a mover's flow, found by their colours; last, so
             # that their new points move neither stage 3 nor the video depth (run before stage 3, where they
             # joined the static tracks and left the dynamic ones: default seed 2, dynamic world accuracy 89.0 -> 87.7)
-            uv, vis, _ = photo_rescue(uv, vis, qf, Dfit, poses, K, frames, masks, cfg, dynamic, xyz, info, labels)
+            uv, vis, _ = photo_rescue(uv, vis, qf, Dfit, poses, K, frames, masks, cfg, dynamic, xyz, info, labels,
+                                      depth)
     if cfg.occluded_static_frames > 0:
         with tm("occluded_static"):
             # dynamic tracks that are static points the tracker followed onto a mover passing in front of them; last
