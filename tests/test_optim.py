@@ -578,14 +578,16 @@ def test_stage3_target_field_follows_a_warp_that_peaks_under_the_object():
 
 def test_stage3_reads_its_own_field_stiffness_and_the_static_side_its_own(tiny_scene, tmp_path):
     """``--dc-target-smooth`` moves the dynamic tracks and leaves the static ones and the labels; ``--dc-field-smooth``
-    changes the static side (its corrected prior)."""
+    changes the static side (its corrected prior). The last tests, which read the video depth (and so stage 3's
+    positions: what a nearer surface hides), are off here."""
     from trackingworld.io.result import load_result
 
     inp = tiny_scene / "input"
 
     def run(name, *flags):
         assert main(["run", str(inp / "frames"), "--out", str(tmp_path / name), "--depth", str(inp / "depth.npy"),
-                     "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", *flags]) == 0
+                     "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", "--occluded-static", "0",
+                     "--no-photo-static-hidden", *flags]) == 0
         return load_result(tmp_path / name)
 
     base, stiff, side = run("base"), run("stiff", "--dc-target-smooth", "10"), run("side", "--dc-field-smooth", "10")
