@@ -65,6 +65,9 @@ def test_too_few_frames_in_view_or_off_the_point_there_is_not_static():
     vis2 = vis.copy()
     vis2[0, [1, 2, 6]] = False  # in view in frame 7 alone
     assert not static_behind_occluders(uv, vis2, qf, np.full(4, WALL), poses, K, depth)[0][0]
+    vis2[0, 6] = True  # in frames 6 and 7: enough with 2 (the default), not with 3
+    assert static_behind_occluders(uv, vis2, qf, np.full(4, WALL), poses, K, depth, min_frames=2)[0][0]
+    assert not static_behind_occluders(uv, vis2, qf, np.full(4, WALL), poses, K, depth, min_frames=3)[0][0]
     uv2 = uv.copy()
     uv2[0, 6:, 0] += 4.0  # off the point in 2 of its 4 in-view frames
     assert not static_behind_occluders(uv2, vis, qf, np.full(4, WALL), poses, K, depth)[0][0]
@@ -94,7 +97,7 @@ def test_occlusion_rescue_updates_labels_points_and_tracks():
 
 @pytest.mark.parametrize("bad", [dict(occluded_static_frames=-1), dict(occluded_static_frac=1.5),
                                  dict(occluded_static_px=0.0), dict(occluded_static_depth=1.2),
-                                 dict(occluded_static_depth=0.0)])
+                                 dict(occluded_static_depth=0.0), dict(occluded_static_in_view=0)])
 def test_out_of_range_settings_are_refused(bad):
     from trackingworld.errors import InputError
     from trackingworld.pipeline.world import check_optim
@@ -108,9 +111,10 @@ def test_the_cli_flags_reach_the_config():
 
     cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--occluded-static", "3",
                                                    "--occluded-static-frac", "0.7", "--occluded-static-px", "1.5",
-                                                   "--occluded-static-depth", "0.8"]))
+                                                   "--occluded-static-depth", "0.8",
+                                                   "--occluded-static-in-view", "4"]))
     assert (cfg.occluded_static_frames, cfg.occluded_static_frac, cfg.occluded_static_px,
-            cfg.occluded_static_depth) == (3, 0.7, 1.5, 0.8)
+            cfg.occluded_static_depth, cfg.occluded_static_in_view) == (3, 0.7, 1.5, 0.8, 4)
     d = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     assert d.occluded_static_frames == OptimConfig().occluded_static_frames == 2
 

@@ -369,8 +369,11 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
                         "surface hides the point (0: off)")
     g.add_argument("--occluded-static-frac", type=float, default=d.occluded_static_frac, metavar="FRAC",
-                   help="with --occluded-static: the share of the in-view frames (at least 3) where the track "
-                        "must be on the point")
+                   help="with --occluded-static: the share of the in-view frames where the track must be on the "
+                        "point")
+    g.add_argument("--occluded-static-in-view", type=int, default=d.occluded_static_in_view, metavar="FRAMES",
+                   help="with --occluded-static: the point must be in view in at least this many of the track's "
+                        "frames (its query frame aside)")
     g.add_argument("--occluded-static-px", type=float, default=d.occluded_static_px, metavar="PX",
                    help="with --occluded-static: on the point means within this many px of its projection")
     g.add_argument("--occluded-static-depth", type=float, default=d.occluded_static_depth, metavar="RATIO",
@@ -422,6 +425,7 @@ def _optim_config(a):
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         photo_static_hidden=a.photo_static_hidden,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
+        occluded_static_in_view=a.occluded_static_in_view,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, dynamic_cell=a.dynamic_cell, cell_cap=a.cell_cap, verbose=not a.quiet,

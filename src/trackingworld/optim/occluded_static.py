@@ -14,8 +14,8 @@ is that static point when
 - it lies within ``px`` of the projection in at least ``frac`` of at least ``min_frames`` in-view frames, and
 - at least ``min_hidden`` of its observations are off the point in frames where the point is hidden: the
   occluder explains what made it fail. Without this a slow mover the masks missed, explained by a static point in
-  2D and caught by the depth tests, would be let go (twenty synthetic scenes, stop 49: bg-mover recall of
-  `default` 0 85.4 -> 81.2 without it, 85.3 with 2; ``docs/lifting.md``).
+  2D and caught by the depth tests, would be let go (a probe on `default` 0's saved result, stop 49: bg-mover
+  recall 85.4 -> 81.2 without it, 85.3 with 2; ``docs/lifting.md``, item 4).
 
 The track is then seen in its query frame and the in-view frames where it was on the point; its 2D track is the
 point's projection (the hidden frames are not observations of the point). Why by hand: a per-track projection and
@@ -32,7 +32,7 @@ from trackingworld.geometry import invert_pose, nearest_pixel, project, transfor
 
 def static_behind_occluders(uv: np.ndarray, vis: np.ndarray, qf: np.ndarray, z_q: np.ndarray, poses_c2w: np.ndarray,
                             K: np.ndarray, depth: np.ndarray, px: float = 2.0, frac: float = 0.8,
-                            min_frames: int = 3, min_hidden: int = 2, in_front: float = 0.9):
+                            min_frames: int = 2, min_hidden: int = 2, in_front: float = 0.9):
     """Which tracks are static points hidden, where they stray, behind something nearer (module docstring).
 
     ``uv [n,T,2]`` px and ``vis [n,T]`` bool: the candidates' 2D tracks; ``qf [n]`` their query frames; ``z_q [n]``

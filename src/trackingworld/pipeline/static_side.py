@@ -304,6 +304,7 @@ def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xy
     x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
     static, X, pix, seen = static_behind_occluders(uv[cand], vis[cand], qf[cand], depth[qf[cand], y, x], poses, K,
                                                    depth, cfg.occluded_static_px, cfg.occluded_static_frac,
+                                                   min_frames=cfg.occluded_static_in_view,
                                                    min_hidden=cfg.occluded_static_frames,
                                                    in_front=cfg.occluded_static_depth)
     idx = cand[static]

@@ -278,11 +278,12 @@ def check_optim(o: OptimConfig) -> None:
                          "tolerance is 0 (off) or more, the share from 0 to 1, the frames 1 or more, the distance 0 or "
                          "more, the depth range from 0 to below 1")
     if (o.occluded_static_frames < 0 or not 0 <= o.occluded_static_frac <= 1 or not o.occluded_static_px > 0
-            or not 0 < o.occluded_static_depth <= 1):
+            or not 0 < o.occluded_static_depth <= 1 or o.occluded_static_in_view < 1):
         raise InputError(f"occluded_static_frames {o.occluded_static_frames} / occluded_static_frac "
                          f"{o.occluded_static_frac} / occluded_static_px {o.occluded_static_px} / "
-                         f"occluded_static_depth {o.occluded_static_depth}: the frames are 0 (off) or more, the share "
-                         "from 0 to 1, the distance over 0 px, the depth ratio over 0 and at most 1")
+                         f"occluded_static_depth {o.occluded_static_depth} / occluded_static_in_view "
+                         f"{o.occluded_static_in_view}: the frames are 0 (off) or more, the share from 0 to 1, the "
+                         "distance over 0 px, the depth ratio over 0 and at most 1, the frames in view 1 or more")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
