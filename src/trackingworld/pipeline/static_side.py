@@ -278,16 +278,7 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
                                              cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
                                              depth_scales(cfg.photo_static_range),
                                              depth if cfg.photo_static_hidden else None, cfg.occluded_static_depth)
-    idx = cand[static]
-    info["photo_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
-    if not len(idx):
-        return uv, vis, idx
-    uv, vis = uv.copy(), vis.copy()
-    uv[idx], vis[idx] = pix, seen
-    dynamic[idx] = False
-    xyz[idx] = X[static][:, None].astype(xyz.dtype)
-    info["dynamic"] = int(dynamic.sum())
-    return uv, vis, idx
+    return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "photo_static")
 
 
 def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xyz,
@@ -307,8 +298,16 @@ def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xy
                                                    min_frames=cfg.occluded_static_in_view,
                                                    min_hidden=cfg.occluded_static_frames,
                                                    in_front=cfg.occluded_static_depth)
+    return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "occluded_static")
+
+
+def become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info: dict,
+                  name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates ``cand [n]`` that a test found ``static [n]`` become their points ``X [n,3]`` (world metres):
+    ``dynamic`` and ``xyz`` updated in place, their 2D tracks ``pix [m,T,2]`` and visibility ``seen [m,T]``;
+    ``info[name]`` counts them. Returns (uv, vis, the tracks changed); copies when any changed."""
     idx = cand[static]
-    info["occluded_static"] = {"tested": int(len(cand)), "static": int(len(idx))}
+    info[name] = {"tested": int(len(cand)), "static": int(len(idx))}
     if not len(idx):
         return uv, vis, idx
     uv, vis = uv.copy(), vis.copy()
