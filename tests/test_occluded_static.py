@@ -112,7 +112,8 @@ def test_the_cli_flags_reach_the_config():
     cfg = _optim_config(build_parser().parse_args(["run", "x", "--out", "o", "--occluded-static", "3",
                                                    "--occluded-static-frac", "0.7", "--occluded-static-px", "1.5",
                                                    "--occluded-static-depth", "0.8",
-                                                   "--occluded-static-in-view", "4"]))
+                                                   "--occluded-static-in-view", "4", "--photo-moving", "0.3"]))
+    assert cfg.photo_moving_share == 0.3
     assert (cfg.occluded_static_frames, cfg.occluded_static_frac, cfg.occluded_static_px,
             cfg.occluded_static_depth, cfg.occluded_static_in_view) == (3, 0.7, 1.5, 0.8, 4)
     d = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
@@ -133,3 +134,47 @@ def test_the_photometric_test_skips_the_frames_where_the_point_is_hidden():
     static, _, _, seen = static_hypothesis(*args, depth=depth)
     assert static[0] and seen[0].tolist() == [True, True, True, False, False, False, True, True]
     assert not static_hypothesis(*args, depth=depth, in_front=0.3)[0][0]  # the box is not nearer than 0.3x
+
+
+def _box_leaving():
+    """A still camera before the wall; a red box 2 m away, at columns 20-30 in frame 0, moves right 6 px a frame
+    and no mask covers it. Tracks from frame 0: on the box (seen in frames 0-2), on the wall (seen throughout), and
+    on the wall where the box passes in front of it in frames 4-5."""
+    poses = np.tile(np.eye(4), (T, 1, 1))
+    frames = np.full((T, H, W, 3), 100, np.uint8)
+    depth = np.full((T, H, W), WALL)
+    for t in range(T):
+        frames[t, :, 20 + 6 * t:31 + 6 * t] = (200, 40, 40)
+        depth[t, :, 20 + 6 * t:31 + 6 * t] = 2.0
+    uv = np.zeros((3, T, 2), np.float32)
+    uv[0] = [[25.0 + 6 * t, 24.0] for t in range(T)]
+    uv[1] = [10.0, 10.0]
+    uv[2] = [50.0, 24.0]
+    vis = np.ones((3, T), bool)
+    vis[0, 3:] = False
+    return uv, vis, np.zeros(3, np.int64), poses, frames, np.zeros((T, H, W), bool), depth
+
+
+def test_photo_moving_finds_a_short_track_whose_point_shows_the_background_after_it_left():
+    from trackingworld.optim.labels import DYNAMIC, STATIC
+    from trackingworld.pipeline.static_side import photo_moving
+
+    uv, vis, qf, poses, frames, masks, depth = _box_leaving()
+    labels = np.full(3, STATIC, np.int8)
+    dynamic = np.zeros(3, bool)
+    info = {}
+    moved = photo_moving(uv, vis, qf, depth, poses, K, frames, masks, OptimConfig(photo_moving_share=0.2), dynamic,
+                         labels, info)
+    assert moved.tolist() == [0] and dynamic.tolist() == [True, False, False]
+    assert info["photo_moving"] == {"tested": 3, "dynamic": 1} and info["dynamic"] == 1
+    # off by default; a track seen in more than vote_short frames, or one the masks do not call static, is not tested
+    for cfg, lab in ((OptimConfig(), labels), (OptimConfig(photo_moving_share=0.2, vote_short=2), labels),
+                     (OptimConfig(photo_moving_share=0.2), np.full(3, DYNAMIC, np.int8))):
+        dyn = np.zeros(3, bool)
+        assert len(photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg, dyn, lab, {})) == 0
+        assert not dyn.any()
+    from trackingworld.errors import InputError
+    from trackingworld.pipeline.world import check_optim
+
+    with pytest.raises(InputError, match="photo_moving_share 1.5: a share from 0 \\(off\\) to 1"):
+        check_optim(OptimConfig(photo_moving_share=1.5))

@@ -286,6 +286,12 @@ class OptimConfig:
     occluded_static_frac: float = 0.8
     occluded_static_px: float = 2.0
     occluded_static_depth: float = 0.9
+    # (not in the paper; 0: off, the default) a static-labelled track of the masks' static region seen in at most
+    # vote_short frames becomes dynamic when its query pixel's static point (the video depth, 0.96-1.04 x) shows its
+    # query colour (photo_static_grey) in less than this share of at least 6 frames where the point is outside the
+    # masks and not hidden: a mover the masks missed has left. Labels only (it runs after stage 3). Twenty-four
+    # synthetic scenes at 0.2: docs/lifting.md, item 4 (a trade: missed-mover recall up, static kept down)
+    photo_moving_share: float = 0.0
     static_outliers: bool = True
     dynamic_cell: int = 4  # stage-3 control tracks: one per (query frame, round(xy / cell)); 0: every dynamic
     # track (the paper). The others follow their control tracks' depth correction by IDW, like static ones.

@@ -379,6 +379,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--occluded-static-depth", type=float, default=d.occluded_static_depth, metavar="RATIO",
                    help="with --occluded-static: the point is hidden where the video depth is less than this times "
                         "the point's")
+    g.add_argument("--photo-moving", type=float, default=d.photo_moving_share, metavar="SHARE",
+                   help="(not in the paper) a short static track of the masks' static region whose static point shows "
+                        "its query colour in less than this share of the frames where it should be seen is a mover "
+                        "the masks missed (labels only; 0: off, the default; 0.2 measured)")
     g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
                    help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
                         "optimised static points' z / prior (default); --no-prior-field: the raw prior")
@@ -425,7 +429,7 @@ def _optim_config(a):
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         photo_static_hidden=a.photo_static_hidden,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
-        occluded_static_in_view=a.occluded_static_in_view,
+        occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,
         prior_field=a.prior_field, static_refit_dc=a.static_refit_dc, refine_focal=a.refine_focal,
         downsample_cell=a.downsample_cell, dynamic_cell=a.dynamic_cell, cell_cap=a.cell_cap, verbose=not a.quiet,

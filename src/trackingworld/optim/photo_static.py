@@ -105,26 +105,16 @@ def query_colours(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndar
     return out
 
 
-def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
-                      blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, frac: float = 0.8,
-                      min_frames: int = 3, scales: np.ndarray | None = None, depth: np.ndarray | None = None,
-                      in_front: float = 0.9):
-    """Which tracks are static points by their colours (module docstring).
+def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
+                  blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, scales: np.ndarray | None = None,
+                  depth: np.ndarray | None = None, in_front: float = 0.9):
+    """How well each query pixel's static point shows its query colour (the arguments as
+    :func:`static_hypothesis`'s): at each depth scale tried, the share of its tested frames that match; the best
+    scale kept (the share, then the count; on a tie the scale nearest 1).
 
-    ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
-    ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8
-    (``tracking2d.flow_tracker.blurred_frames``); ``open_ [T,H,W]`` bool, where the hypothesis is tested (the
-    masks' sure-static region: ``optim.labels.mask_regions`` with MASK_MARGIN_PX); ``grey``: colour tolerance
-    (grey levels, max over RGB); ``frac``, ``min_frames``: the share of at least that many tested frames (every
-    frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales
-    tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept; ``depth [T,H,W]``
-    metres (the consistent video depth; None: not read): a frame where it is less than ``in_front`` times the
-    point's depth at the projection hides the point there, and is not tested.
-
-    Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
-    float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
-    and the tested frames that matched)."""
-    n, T = len(qf), len(poses_c2w)
+    Returns (share [n] of the tested frames matched, count [n] of frames tested, X [n,3] world metres at the best
+    scale, colour [n,3] float32 the query colours)."""
+    n = len(qf)
     scales = depth_scales(0.04) if scales is None else np.asarray(scales, np.float64)
     scales = scales[np.argsort(np.abs(np.log(scales)), kind="stable")]  # on a tie the scale nearest 1 is kept
     w2c = invert_pose(poses_c2w)
@@ -144,8 +134,32 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
         better = f + 1e-4 * matched > best
         best[better] = (f + 1e-4 * matched)[better]
         best_s[better], share[better], count[better] = s, f[better], tested[better]
+    return share, count, points(best_s), colour
+
+
+def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
+                      blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, frac: float = 0.8,
+                      min_frames: int = 3, scales: np.ndarray | None = None, depth: np.ndarray | None = None,
+                      in_front: float = 0.9):
+    """Which tracks are static points by their colours (module docstring).
+
+    ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
+    ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8
+    (``tracking2d.flow_tracker.blurred_frames``); ``open_ [T,H,W]`` bool, where the hypothesis is tested (the
+    masks' sure-static region: ``optim.labels.mask_regions`` with MASK_MARGIN_PX); ``grey``: colour tolerance
+    (grey levels, max over RGB); ``frac``, ``min_frames``: the share of at least that many tested frames (every
+    frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales
+    tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept; ``depth [T,H,W]``
+    metres (the consistent video depth; None: not read): a frame where it is less than ``in_front`` times the
+    point's depth at the projection hides the point there, and is not tested.
+
+    Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
+    float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
+    and the tested frames that matched)."""
+    T = len(poses_c2w)
+    share, count, X, colour = colour_shares(uv_q, z_q, qf, poses_c2w, K, blur, open_, grey, scales, depth, in_front)
+    w2c = invert_pose(poses_c2w)
     static = (count >= min_frames) & (share >= frac)
-    X = points(best_s)
     keep = np.flatnonzero(static)
     pix = np.zeros((len(keep), T, 2), np.float32)
     seen = np.zeros((len(keep), T), bool)

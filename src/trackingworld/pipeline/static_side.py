@@ -19,7 +19,13 @@ from trackingworld.geometry import nearest_pixel, transform, unproject
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, mask_regions
 from trackingworld.optim.occluded_static import static_behind_occluders
-from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
+from trackingworld.optim.photo_static import (
+    MASK_MARGIN_PX,
+    colour_shares,
+    depth_scales,
+    near_masks,
+    static_hypothesis,
+)
 from trackingworld.optim.static_tests import (
     fit_static_points,
     fits_static_chunked,
@@ -299,6 +305,36 @@ def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xy
                                                    min_hidden=cfg.occluded_static_frames,
                                                    in_front=cfg.occluded_static_depth)
     return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "occluded_static")
+
+
+PHOTO_MOVING_FRAMES = 6  # the photometric mover test needs at least this many tested frames (3: more static tracks
+# flagged for the same movers; stop 49's probe, docs/lifting.md)
+
+
+def photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg: OptimConfig, dynamic, labels,
+                 info: dict) -> np.ndarray:
+    """(not in the paper; off by default) The reverse of :func:`photo_rescue`, for movers the masks missed: every
+    static-labelled track of the masks' static region seen in at most ``cfg.vote_short`` frames whose query pixel's
+    static point (the video depth ``depth [T,h,w]`` there, times 0.96-1.04) shows its query colour in less than
+    ``cfg.photo_moving_share`` of at least PHOTO_MOVING_FRAMES frames where the point is outside the masks and not
+    hidden becomes dynamic (``dynamic`` updated in place). Its positions stay its static point's: this runs after
+    stage 3, since it reads the video depth. Returns the tracks changed."""
+    if cfg.photo_moving_share <= 0:
+        return np.zeros(0, np.int64)
+    cand = np.flatnonzero(~dynamic & (labels == STATIC) & (vis.sum(1) <= cfg.vote_short))
+    if not len(cand):
+        return cand
+    H, W = depth.shape[1:]
+    x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
+    share, count, _, _ = colour_shares(uv[cand, qf[cand]], depth[qf[cand], y, x].astype(np.float64), qf[cand], poses,
+                                       K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
+                                       cfg.photo_static_grey, depth_scales(cfg.photo_static_range), depth,
+                                       cfg.occluded_static_depth)
+    idx = cand[(count >= PHOTO_MOVING_FRAMES) & (share < cfg.photo_moving_share)]
+    dynamic[idx] = True
+    info["photo_moving"] = {"tested": int(len(cand)), "dynamic": int(len(idx))}
+    info["dynamic"] = int(dynamic.sum())
+    return idx
 
 
 def become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info: dict,

@@ -41,6 +41,7 @@ from trackingworld.pipeline.static_side import (
     classify_masked,
     drop_off_point,
     occlusion_rescue,
+    photo_moving,
     photo_rescue,
     rebuild_static,
     vote_short_tracks,
@@ -249,6 +250,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # dynamic tracks that are static points the tracker followed onto a mover passing in front of them; last
             # too, for the same reason, and it reads the video depth
             uv, vis, _ = occlusion_rescue(uv, vis, qf, depth, poses, K, cfg, dynamic, xyz, info)
+    if cfg.photo_moving_share > 0 and frames is not None:
+        with tm("photo_moving"):
+            # short static tracks whose static point does not show its colour where it should be seen: movers the
+            # masks missed (labels only, after stage 3: it reads the video depth)
+            photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg, dynamic, labels, info)
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
             "visible": vis, "tracks_2d": uv, "info": info}
 
@@ -284,6 +290,8 @@ def check_optim(o: OptimConfig) -> None:
                          f"occluded_static_depth {o.occluded_static_depth} / occluded_static_in_view "
                          f"{o.occluded_static_in_view}: the frames are 0 (off) or more, the share from 0 to 1, the "
                          "distance over 0 px, the depth ratio over 0 and at most 1, the frames in view 1 or more")
+    if not 0 <= o.photo_moving_share <= 1:
+        raise InputError(f"photo_moving_share {o.photo_moving_share}: a share from 0 (off) to 1")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
