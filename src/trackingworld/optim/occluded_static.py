@@ -54,7 +54,7 @@ def static_behind_occluders(uv: np.ndarray, vis: np.ndarray, qf: np.ndarray, z_q
         v = np.flatnonzero(vis[:, t] & (qf != t))
         if not len(v):
             continue
-        on, view, hidden = _look(X[v], uv[v, t], depth[t], w2c[t], K, px, in_front)
+        _, on, view, hidden = _look(X[v], uv[v, t], depth[t], w2c[t], K, px, in_front)
         in_view[v] += view
         on_view[v] += view & on
         hidden_off[v] += hidden & ~on
@@ -63,9 +63,7 @@ def static_behind_occluders(uv: np.ndarray, vis: np.ndarray, qf: np.ndarray, z_q
     pix = np.zeros((len(keep), T, 2), np.float32)
     seen = np.zeros((len(keep), T), bool)
     for t in range(T):
-        p, _ = project(transform(w2c[t], X[keep]), K)
-        pix[:, t] = p
-        on, view, _ = _look(X[keep], uv[keep, t], depth[t], w2c[t], K, px, in_front)
+        pix[:, t], on, view, _ = _look(X[keep], uv[keep, t], depth[t], w2c[t], K, px, in_front)
         seen[:, t] = vis[keep, t] & on & view
     seen[np.arange(len(keep)), qf[keep]] = True
     pix[np.arange(len(keep)), qf[keep]] = uv_q[keep]
@@ -73,8 +71,9 @@ def static_behind_occluders(uv: np.ndarray, vis: np.ndarray, qf: np.ndarray, z_q
 
 
 def _look(X: np.ndarray, uv_t: np.ndarray, depth_t: np.ndarray, w2c_t: np.ndarray, K: np.ndarray, px: float,
-          in_front: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points ``X [m,3]`` (world) in one frame against the tracks' pixels there ``uv_t [m,2]``: (on [m], the track
+          in_front: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points ``X [m,3]`` (world) in one frame against the tracks' pixels there ``uv_t [m,2]``: (their projections
+    [m,2] px; on [m], the track
     within ``px`` of the projection; in view [m], the projection inside the image, in front of the camera and not
     behind the frame's depth ``depth_t [H,W]``; hidden [m], inside the image with that depth less than ``in_front``
     times the point's)."""
@@ -88,4 +87,4 @@ def _look(X: np.ndarray, uv_t: np.ndarray, depth_t: np.ndarray, w2c_t: np.ndarra
     x, y = nearest_pixel(p[k], W, H)
     hidden[k] = depth_t[y, x] < in_front * z[k]
     on = np.linalg.norm(p - uv_t, axis=-1) <= px
-    return on, inside & ~hidden, hidden
+    return p, on, inside & ~hidden, hidden

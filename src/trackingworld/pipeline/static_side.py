@@ -287,6 +287,14 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
     return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "photo_static")
 
 
+def query_depths(depth: np.ndarray, uv: np.ndarray, qf: np.ndarray, cand: np.ndarray) -> np.ndarray:
+    """``[n]`` float64 metres: the video depth ``depth [T,h,w]`` at the query pixels (nearest) of the tracks
+    ``cand [n]`` (``uv [N,T,2]`` px, query frames ``qf [N]``)."""
+    H, W = depth.shape[1:]
+    x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
+    return depth[qf[cand], y, x].astype(np.float64)
+
+
 def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xyz,
                      info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(not in the paper) Every dynamic track that is its query pixel's static point wherever that point is in view,
@@ -297,9 +305,8 @@ def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xy
     cand = np.flatnonzero(dynamic)
     if cfg.occluded_static_frames <= 0 or not len(cand):
         return uv, vis, np.zeros(0, np.int64)
-    H, W = depth.shape[1:]
-    x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
-    static, X, pix, seen = static_behind_occluders(uv[cand], vis[cand], qf[cand], depth[qf[cand], y, x], poses, K,
+    static, X, pix, seen = static_behind_occluders(uv[cand], vis[cand], qf[cand], query_depths(depth, uv, qf, cand),
+                                                   poses, K,
                                                    depth, cfg.occluded_static_px, cfg.occluded_static_frac,
                                                    min_frames=cfg.occluded_static_in_view,
                                                    min_hidden=cfg.occluded_static_frames,
@@ -324,9 +331,7 @@ def photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg: OptimConfig, 
     cand = np.flatnonzero(~dynamic & (labels == STATIC) & (vis.sum(1) <= cfg.vote_short))
     if not len(cand):
         return cand
-    H, W = depth.shape[1:]
-    x, y = nearest_pixel(uv[cand, qf[cand]], W, H)
-    share, count, _, _ = colour_shares(uv[cand, qf[cand]], depth[qf[cand], y, x].astype(np.float64), qf[cand], poses,
+    share, count, _, _ = colour_shares(uv[cand, qf[cand]], query_depths(depth, uv, qf, cand), qf[cand], poses,
                                        K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
                                        cfg.photo_static_grey, depth_scales(cfg.photo_static_range), depth,
                                        cfg.occluded_static_depth)
