@@ -27,7 +27,9 @@ from trackingworld.synth import render_and_write
 PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask_dynamic_px": 0.0,
               "depth_mover_log": 0.0, "prior_field": False, "static_refit_dc": 0.0, "own_test": False,
               "test_stat": "max", "static_outliers": False, "ts_order": 1, "slip_run": 0.0, "vote_short": 1,
-              "dc_edge_sigma_px": 0.0, "stage2_reject": False}
+              "dc_edge_sigma_px": 0.0, "stage2_reject": False, "vote_colour_sigma": 0.0,
+              "vote_once_gap_px": float("inf"), "photo_static_grey": 0.0, "occluded_static_frames": 0,
+              "dynamic_cell": 0}
 
 # dense 2D tracks the rows run on (Track2DConfig fields)
 TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"},
@@ -65,10 +67,17 @@ ROWS = {
     "static observations off their point kept": ("trackingworld", {"static_outliers": False}, ""),
     "masked tracks that slip off their point: no run test (paper)": ("trackingworld", {"slip_run": 0.0}, ""),
     "short tracks not voted on (only those seen once)": ("trackingworld", {"vote_short": 1}, ""),
-    "all fifteen as the paper": ("trackingworld", PAPER_LIKE, ""),
+    "the vote by 3D distance alone (no colour)": ("trackingworld", {"vote_colour_sigma": 0.0}, ""),
+    "tracks seen once far from the voters: no fallback vote": ("trackingworld", {"vote_once_gap_px": float("inf")}, ""),
+    "no photometric test of the dynamic tracks": ("trackingworld", {"photo_static_grey": 0.0}, ""),
+    "photometric test in the hidden frames too (stop 46)": ("trackingworld", {"photo_static_hidden": False}, ""),
+    "no occlusion test of the dynamic tracks": ("trackingworld", {"occluded_static_frames": 0}, ""),
+    "every dynamic track solved in stage 3 (paper)": ("trackingworld", {"dynamic_cell": 0}, ""),
+    "with the reverse photometric test (--photo-moving 0.2)": ("trackingworld", {"photo_moving_share": 0.2}, ""),
+    f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),
-    "all fifteen and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
+    f"all {len(PAPER_LIKE)} and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
     "baseline (camera-centric)": ("baseline", {}, ""),
 }
 
