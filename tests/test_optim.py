@@ -14,8 +14,9 @@ from trackingworld.cli.main import main
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import lie, stage1, stage2, stage3, static_tests
-from trackingworld.optim.densify import cell_cap_mask, thinned_observations
+from trackingworld.optim.densify import cell_cap_mask, ratio_maps, thinned_observations
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
+from trackingworld.optim.parallel import each_frame
 from trackingworld.optim.stage1 import build_clips, chain_clips, clip_frames, initial_poses, solve_clips_lm
 from trackingworld.pipeline import fields as prior_fields
 from trackingworld.pipeline import world
@@ -226,6 +227,29 @@ def test_video_depth_references_one_visible_observation_per_cell():
         cells = {tuple(c) for c in np.floor(uv[vis[:, f], f] / 8).astype(int)}
         got = [tuple(c) for c in np.floor(uv[n[t == f], f] / 8).astype(int)]
         assert len(got) == len(set(got)) == len(cells)
+
+
+def test_video_depth_maps_on_threads_are_the_maps_of_one_thread():
+    # each frame writes its own map: the maps do not depend on the threads, a frame without references keeps 1, and
+    # an error in one frame's work reaches the caller
+    rng = np.random.default_rng(1)
+    T, H, W = 4, 24, 32
+    K = np.array([[30.0, 0, 16], [0, 30, 12], [0, 0, 1]])
+    frame = np.repeat([0, 1, 3], 40)
+    ref_uv = rng.uniform([0, 0], [W, H], (len(frame), 2))
+    ref_depth = rng.uniform(2, 4, len(frame))
+    ratio = rng.uniform(0.9, 1.1, len(frame))
+    prior = rng.uniform(2, 4, (T, H, W))
+    one = ratio_maps(frame, ref_uv, ref_depth, ratio, prior, K, threads=1)
+    assert np.array_equal(one, ratio_maps(frame, ref_uv, ref_depth, ratio, prior, K, threads=3))
+    assert (one[2] == 1).all() and not (one[0] == 1).all()
+    assert one.min() >= 0.9 - 1e-6 and one.max() <= 1.1 + 1e-6  # inverse-distance means of the references' ratios
+
+    def fails(t):
+        if t == 2:
+            raise RuntimeError("frame 2")
+    with pytest.raises(RuntimeError, match="frame 2"):
+        each_frame(fails, range(T), threads=2)
 
 
 def test_cell_cap_keeps_the_freshest_tracks_of_every_visited_cell():

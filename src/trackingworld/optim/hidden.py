@@ -28,13 +28,13 @@ the inverse-distance mean velocity of its 4 nearest tracks at s in 3D that have 
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from trackingworld.config import CARRY_STATS
+from trackingworld.optim.parallel import worker_threads
 from trackingworld.tracking2d.base import nearest_visible_frame
 
 MAX_DONORS = 2000  # tracks visible at both frames used per (s, t) pair: an even thinning beyond this (speed)
@@ -54,15 +54,9 @@ CHUNK = 1 << 14  # tracks per chunk of the interpolation
 # (a third less to build, the queries as fast), positions kept in float32 but per pair: the carrying there 6.4-7.8 s
 # (four runs) -> 4.6-5.2 s (three), world accuracy 80.46 -> 80.43; six 32-48-frame scenes within 0.04
 TREE = dict(balanced_tree=False, compact_nodes=False)
-# the (s, t) pairs are shared among this many threads (scipy's kNN and numpy's larger operations release the GIL):
-# 120 frames, 5,888 pairs on 2 cores: 3.72 -> 2.58 s for the searches, the same steps to the bit (README)
-MAX_THREADS = 8
-
-
-def carry_threads() -> int:
-    """Threads for the carrying's searches: the CPUs this process may run on, at most MAX_THREADS."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(MAX_THREADS, cpus))
+# the (s, t) pairs are shared among optim.parallel.worker_threads() threads (scipy's kNN and numpy's larger
+# operations release the GIL): 120 frames, 5,888 pairs on 2 cores: 3.72 -> 2.58 s for the searches, the same steps
+# to the bit (README)
 
 
 def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> np.ndarray:
@@ -164,7 +158,7 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     interpolated linearly between the searched frames on either side of it (the first and last frames of the
     video are searched from every anchor; where no searched frame follows in the same run of hidden frames, the
     step of the one before). Tracks never visible are returned as given. The searches run on ``threads``
-    threads (None: :func:`carry_threads`); the result does not depend on it. ``uv [N,T,2]`` (px) with
+    threads (None: ``optim.parallel.worker_threads``); the result does not depend on it. ``uv [N,T,2]`` (px) with
     ``motion_scale`` > 0 (metres per px per frame): donors searched with the image motion too (module docstring).
     Returns a new ``[N,T,3]`` array of xyz's dtype."""
     if stat not in CARRY_STATS:
@@ -207,7 +201,7 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
         return donor_step(pos[s], pos[t], np.flatnonzero(vis_t[s] & vis_t[t]), i, k, reach, max_donors,
                           None if motion is None else motion[s], stat)
 
-    with ThreadPoolExecutor(carry_threads() if threads is None else threads) as pool:
+    with ThreadPoolExecutor(worker_threads() if threads is None else threads) as pool:
         for (_, t, i), st in zip(pairs, pool.map(pair_step, pairs), strict=True):
             if st is not None:
                 step[t, i] = st
