@@ -240,6 +240,12 @@ def test_track2d_cli(tiny_scene, tmp_path):
                  "--max-frames", "4"]) == 0
     z = np.load(out)
     assert z["tracks"].shape[1] == 4 and z["visible"].dtype == bool and z["queries"].shape[1] == 3
+    # the file is a tracks file for --tracks as it is: the same tracks, visibility and queries come back
+    back = load_tracks(out, 4)
+    vis = z["visible"]
+    np.testing.assert_array_equal(back.visible, vis)
+    np.testing.assert_allclose(back.tracks[vis], z["tracks"][vis])
+    np.testing.assert_allclose(back.queries, z["queries"])
     # the skip flows are a switch: over 8 frames, stride 4 (on) and 0 (off) move the first frame's grid differently
     runs = {}
     for stride in ("4", "0"):

@@ -2,6 +2,8 @@
 
 Accepted ``.npz`` / ``.npy`` (dict) layouts, recognised by their keys:
 
+* this package's (``trackingworld track2d``): ``tracks [N,T,2]``, ``visible [N,T]`` bool, ``queries [N,3]`` as
+  (t, x, y), optional ``confidence [N,T]`` (not read);
 * CoTracker: ``tracks [T,N,2]`` (or ``[1,T,N,2]``), ``visibility [T,N]`` (bool or probability),
   ``queries [N,3]`` as (t, x, y);
 * TAPNet / TAP-Vid: ``tracks [N,T,2]``, ``occluded [N,T]`` bool, optional ``query_points [N,3]`` as (t, y, x);
@@ -33,7 +35,9 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
         d = {k: z[k] for k in z.files} if hasattr(z, "files") else {}
     except (OSError, ValueError) as e:
         raise InputError(f"{path}: cannot read tracks ({e})") from e
-    if "occluded" in d:  # TAPNet
+    if "visible" in d and "tracks" in d:  # trackingworld track2d
+        tracks, vis, queries = d["tracks"], d["visible"], d.get("queries")
+    elif "occluded" in d:  # TAPNet
         tracks, vis = d["tracks"], ~d["occluded"].astype(bool)
         q = d.get("query_points")
         queries = None if q is None else np.stack([q[:, 0], q[:, 2], q[:, 1]], 1)
@@ -47,7 +51,8 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
         queries = None if queries is None else np.squeeze(queries)
     else:
         raise InputError(f"{path}: unknown tracks layout (keys: {', '.join(d) or 'none'}); "
-                         "expected CoTracker (tracks, visibility, queries) or TAPNet (tracks, occluded)")
+                         "expected trackingworld track2d's (tracks, visible, queries), CoTracker (tracks, visibility, "
+                         "queries) or TAPNet (tracks, occluded)")
     if tracks.ndim != 3 or tracks.shape[-1] != 2 or vis.shape != tracks.shape[:2]:
         raise InputError(f"{path}: tracks {tracks.shape} and visibility {vis.shape} do not match")
     if tracks.shape[1] != T:

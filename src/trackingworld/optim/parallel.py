@@ -1,9 +1,9 @@
-"""Loops over frames run on threads: the per-frame work of the video depth and of stage 3's followers is a kNN
-search (scipy's releases the GIL) and large numpy array operations (which release it too), so two frames on two
-cores overlap. Each frame writes its own slice of the output, so the result does not depend on the number of
-threads (up to the last bit of the matrix products numpy hands to its BLAS, whose own threading varies with the
-load: 30 frames at 854x480, world positions within 2e-6 m of one thread's). Threads rather than processes: the
-arrays are shared, not copied."""
+"""Loops over frames run on threads. The video depth's per-frame work is a kNN search (scipy's releases the GIL)
+and large numpy array operations (which release it too), so two frames on two cores overlap. Each frame writes its
+own slice of the output, so the result does not depend on the number of threads. Threads rather than processes:
+the arrays are shared, not copied. Stage 3's followers and the short tracks' vote, run the same way, measured no
+faster in a whole run (30 frames at 854x480, two runs each beside stop 49's code; ``docs/speed.md``), and stay
+sequential."""
 
 from __future__ import annotations
 

@@ -23,7 +23,6 @@ import torch
 from trackingworld.config import OptimConfig
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import propagate_ratio
-from trackingworld.optim.parallel import each_frame
 from trackingworld.optim.slip import frames_around, long_runs, run_around
 
 FIT_CHUNK = 1 << 17  # tracks per chunk of the as-static fits and tests (bounds their memory at large videos)
@@ -144,8 +143,7 @@ def vote_short(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.nda
     voter in its frame keeps its flag."""
     out = dynamic[once].copy()
     voters_t = np.ascontiguousarray(vis[voters].T)
-
-    def frame_vote(q: int) -> None:  # the tracks of query frame q (frames on threads: optim.parallel)
+    for q in np.unique(qf[once]):
         sel = np.flatnonzero(qf[once] == q)
         who, d = once[sel], voters[voters_t[q]]
         if len(d):
@@ -153,8 +151,6 @@ def vote_short(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.nda
                                        k, ref_colour=None if colours is None else colours[d],
                                        query_colour=None if colours is None else colours[who],
                                        colour_sigma=colour_sigma) >= 0.5
-
-    each_frame(frame_vote, np.unique(qf[once]).tolist())
     return out
 
 

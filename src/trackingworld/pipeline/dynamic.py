@@ -13,7 +13,6 @@ from trackingworld.geometry import focal_length, transform, unproject
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
-from trackingworld.optim.parallel import each_frame
 from trackingworld.pipeline.fields import camera_depths, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
@@ -71,15 +70,13 @@ def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k
     corr = camera_depths(xyz[cd], poses) / np.maximum(target[ctrl], 1e-6)
     out = xyz[dyn]
     follow_t, ref_t = np.ascontiguousarray(follow.T), np.ascontiguousarray(ref_obs.T)
-
-    def frame_follows(t: int) -> None:  # frame t's column of out (frames on threads: optim.parallel)
+    for t in range(T):
         w = np.flatnonzero(follow_t[t])
         v = np.flatnonzero(ref_t[t])
-        if len(w):
-            r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
-            out[w, t] = transform(poses[t], unproject(uv[dyn[w], t], r * target[w, t], K))
-
-    each_frame(frame_follows, range(T))
+        if not len(w):
+            continue
+        r = propagate_ratio(uv[cd[v], t], D[cd[v], t], corr[v, t], uv[dyn[w], t], D[dyn[w], t], K, k)
+        out[w, t] = transform(poses[t], unproject(uv[dyn[w], t], r * target[w, t], K))
     return out
 
 
