@@ -89,12 +89,13 @@ def test_stage3_options_reach_the_config():
                                                    "--vote-colour-sigma", "0", "--vote-k", "5",
                                                    "--dc-target-smooth", "0.02", "--dc-field-smooth", "0.03",
                                                    "--dynamic-cell", "2", "--depth-mover-rounds", "4",
-                                                   "--depth-mover-suspect", "0.7", "--photo-static", "16",
+                                                   "--depth-mover-suspect", "0.7", "--depth-mover-mad", "4",
+                                                   "--photo-static", "16",
                                                    "--photo-static-frac", "0.6", "--vote-once-gap", "inf"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
-    assert (cfg.dynamic_cell, cfg.depth_mover_rounds, cfg.depth_mover_suspect) == (2, 4, 0.7)
+    assert (cfg.dynamic_cell, cfg.depth_mover_rounds, cfg.depth_mover_suspect, cfg.depth_mover_mad) == (2, 4, 0.7, 4.0)
     assert (cfg.photo_static_grey, cfg.photo_static_frac, cfg.vote_once_gap_px) == (16.0, 0.6, np.inf)
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
@@ -140,7 +141,7 @@ def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):
         with pytest.raises(InputError, match="the colour weight's width is 0 \\(off\\) or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     for bad in (dict(depth_mover_rounds=0), dict(depth_mover_suspect=0.0), dict(depth_mover_suspect=1.5),
-                dict(depth_mover_range_px=-1)):
+                dict(depth_mover_range_px=-1), dict(depth_mover_mad=-1.0), dict(depth_mover_mad=float("nan"))):
         with pytest.raises(InputError, match="the rounds are 1 or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     for bad in (dict(photo_static_grey=-1.0), dict(photo_static_frac=1.2), dict(photo_static_frames=0),

@@ -317,6 +317,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "that the masks missed (0: off, the paper)")
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
+    g.add_argument("--depth-mover-mad", type=float, default=d.depth_mover_mad, metavar="K",
+                   help="(not in the paper) the depth-discrepancy test's threshold raised to K times the median "
+                        "absolute deviation of the discrepancies when that is larger (0: the fixed threshold)")
     g.add_argument("--depth-mover-rounds", type=int, default=d.depth_mover_rounds, metavar="N",
                    help="rounds of that test, each against the frames' fields fitted again without the movers and "
                         "suspects the last round found")
@@ -421,7 +424,8 @@ def _optim_config(a):
         mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
-        depth_mover_rounds=a.depth_mover_rounds, depth_mover_suspect=a.depth_mover_suspect,
+        depth_mover_rounds=a.depth_mover_rounds, depth_mover_mad=a.depth_mover_mad,
+        depth_mover_suspect=a.depth_mover_suspect,
         depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
         vote_once_gap_px=a.vote_once_gap,

@@ -179,9 +179,13 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
         keep, e = less_fields(uv_obs, t, e_raw, fields)
         if spread is not None:
             e = blur_tolerant(e, spread[0][keep], spread[1][keep])
-        thresholds = [cfg.depth_mover_log]
+        if r == 0:  # the threshold: fixed, or raised to a multiple of the first round's spread of e
+            threshold = cfg.depth_mover_log
+            if cfg.depth_mover_mad > 0 and len(e):
+                threshold = max(threshold, cfg.depth_mover_mad * float(np.median(np.abs(e - np.median(e)))))
+        thresholds = [threshold]
         if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # the suspects, for the next round's fields
-            thresholds.append(cfg.depth_mover_log * cfg.depth_mover_suspect)
+            thresholds.append(threshold * cfg.depth_mover_suspect)
         movers, *suspects = depth_movers_at(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
                                             thresholds, cfg.depth_mover_window_px)
         if suspects:

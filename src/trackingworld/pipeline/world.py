@@ -272,10 +272,12 @@ def check_optim(o: OptimConfig) -> None:
         raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k} / vote_once_gap_px "
                          f"{o.vote_once_gap_px}: the colour weight's width is 0 (off) or more, the voters 1 or "
                          "more, the gap 0 px or more (inf: off)")
-    if o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1 or o.depth_mover_range_px < 0:
+    if (o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1 or o.depth_mover_range_px < 0
+            or not o.depth_mover_mad >= 0):
         raise InputError(f"depth_mover_rounds {o.depth_mover_rounds} / depth_mover_suspect {o.depth_mover_suspect} / "
-                         f"depth_mover_range_px {o.depth_mover_range_px}: the rounds are 1 or more, the suspects' "
-                         "fraction of the threshold over 0 and at most 1, the range 0 px or more")
+                         f"depth_mover_range_px {o.depth_mover_range_px} / depth_mover_mad {o.depth_mover_mad}: the "
+                         "rounds are 1 or more, the suspects' fraction of the threshold over 0 and at most 1, the "
+                         "range 0 px or more, the threshold's MADs 0 (off) or more")
     if (o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1
             or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1):
         raise InputError(f"photo_static_grey {o.photo_static_grey} / photo_static_frac {o.photo_static_frac} / "
