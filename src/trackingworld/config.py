@@ -118,9 +118,10 @@ class OptimConfig:
     # (not in the paper) ... and that threshold raised to this many median absolute deviations of the first round's
     # discrepancies where that is more (0: the fixed threshold alone): a prior whose warp the fields follow less
     # well (the `hard` preset's, warped by up to 20%) spreads the discrepancies of static regions wider and the fixed
-    # threshold flags them. Their MAD: 0.0065-0.0070 on `hard` 0-2, 0.0048-0.0052 on `default` 0 / 4 / 12 / 13, so
-    # 6 leaves the `default` scenes' threshold near 0.03 and raises `hard`'s to about 0.04. Off by default: on the
-    # four fresh scenes it traded static kept (+0.38) for missed-mover recall (-1.82; docs/lifting.md, item 5)
+    # threshold flags them. Their MAD (the last round's): 0.0065-0.0070 on `hard` 0-2, 0.0048-0.0052 on `default`
+    # 0 / 4 / 12 / 13, so 6 leaves the `default` scenes' threshold near 0.03 and raises `hard`'s to about 0.04. Off
+    # by default: on the four fresh scenes it traded static kept (+0.38) for missed-mover recall (-1.82;
+    # docs/lifting.md, item 5)
     depth_mover_mad: float = 0.0
     # the test's rounds: each fits the frames' fields again without the movers found and the suspects (tracks
     # that pass the test at depth_mover_suspect x the threshold), which otherwise pull the field toward

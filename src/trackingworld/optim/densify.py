@@ -131,6 +131,7 @@ def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref
     frame, ref_uv, ref_depth, ref_ratio = frame[ok], ref_uv[ok], ref_depth[ok], ref_ratio[ok]
     order = np.argsort(frame, kind="stable")
     bounds = np.searchsorted(frame[order], np.arange(T + 1))
+
     def frame_map(t: int) -> None:
         v = order[bounds[t]:bounds[t + 1]]
         if len(v):
