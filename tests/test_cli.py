@@ -103,6 +103,14 @@ def test_stage3_options_reach_the_config():
     assert got == (d.carry_k, d.carry_reach, d.ts_order, d.stage3_linear) == (d.carry_k, d.carry_reach, 2, "cg")
     with pytest.raises(SystemExit):
         build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
+    # the depth-discrepancy test's range: estimated from the prior (None) unless a whole number of px is given
+    assert default.depth_mover_range_px is d.depth_mover_range_px is None
+    for text, want in (("auto", None), ("0", 0), ("3", 3)):
+        args = build_parser().parse_args(["run", "x", "--out", "o", "--depth-mover-range", text])
+        assert _optim_config(args).depth_mover_range_px == want
+    for bad in ("-1", "1.5", "wide"):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["run", "x", "--out", "o", "--depth-mover-range", bad])
 
 
 def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):

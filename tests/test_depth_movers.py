@@ -181,3 +181,35 @@ def test_threshold_in_mads_spares_a_noisy_priors_static_regions_and_leaves_a_cle
     assert np.array_equal(got[0.0, 0.0], got[0.0, 6.0]) and got[0.0, 0.0][patch].mean() > 0.8
     assert got[0.06, 0.0][~patch].mean() > 0.02
     assert got[0.06, 6.0][~patch].mean() < 0.005 and got[0.06, 6.0][patch].mean() > 0.3
+
+
+def test_the_estimated_range_forgives_a_2_px_blur_that_1_px_does_not(rng):
+    """A prior with depth steps (a box at 4 m on a wall at 8 m) blurred by 2 px, observations fitted at their own
+    side's true depth: measured to the prior's extremes within 1 px, the points 2-3 px from an edge still read the
+    other side's blur (over the test's 3%); within the range estimated from the prior (2 px) they do not. A patch
+    fitted 10% too far keeps its 10% either way."""
+    import cv2
+
+    from trackingworld.optim.depth_movers import blur_tolerant, prior_spread
+
+    T, H, W = 2, 120, 160
+    truth = np.full((T, H, W), 8.0)
+    truth[:, 30:90, 40:120] = 4.0
+    prior = np.stack([cv2.GaussianBlur(d.astype(np.float32), (0, 0), 2.0) for d in truth])
+    reach = prior_fields.mover_range_px(None, prior)
+    assert reach == 2
+    uv = rng.uniform([5, 5], [W - 6, H - 6], (4000, 2))
+    t = np.sort(rng.integers(0, T, 4000))
+    px = np.rint(uv).astype(int)
+    mover = (uv[:, 0] > 130) & (uv[:, 1] > 95)  # on the wall, away from the box
+    z = truth[t, px[:, 1], px[:, 0]] * np.where(mover, 1.1, 1.0)
+    e = np.log(z / prior[t, px[:, 1], px[:, 0]])
+    box_x, box_y = np.abs(px[:, 0] - 79.5) - 40, np.abs(px[:, 1] - 59.5) - 30  # > 0 outside the box
+    dist = np.where((box_x > 0) | (box_y > 0), np.hypot(np.maximum(box_x, 0), np.maximum(box_y, 0)),
+                    -np.minimum(-box_x, -box_y))  # signed distance to the box's edge (inside < 0)
+    band = (np.abs(dist) >= 2) & (np.abs(dist) <= 3)
+    wrong = {r: np.abs(blur_tolerant(e, *prior_spread(t, uv, prior, r))) > 0.03 for r in (1, reach)}
+    assert wrong[1][band].mean() > 0.3
+    assert wrong[reach][band].mean() < 0.05
+    for r in (1, reach):
+        assert np.allclose(blur_tolerant(e, *prior_spread(t, uv, prior, r))[mover], np.log(1.1), atol=1e-3)

@@ -3,7 +3,10 @@
 import cv2
 import numpy as np
 
-from trackingworld.optim.edge_prior import inner_prior
+import pytest
+
+from trackingworld.optim.edge_prior import edge_blur_px, inner_prior
+from trackingworld.pipeline.fields import mover_range_px
 
 
 def test_a_rim_pixel_reads_its_objects_depth_not_the_blurred_background():
@@ -52,3 +55,48 @@ def test_hidden_tracks_do_not_count_and_no_track_leaves_the_prior():
     near[8:13, 8:13] = True
     np.testing.assert_allclose(out[1][near], prior[1, 10, 10], rtol=1e-6)  # its depth spread around it
     np.testing.assert_array_equal(out[1][20:], prior[1][20:])  # and not beyond the Gaussian's reach
+
+
+def _boxes_video(blur: float, frames: int = 4, noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    """[T,120,160] metres: boxes at 1.5-4 m on a slanted wall at 6-7 m, each frame's boxes elsewhere, blurred by a
+    Gaussian of ``blur`` px, times (1 + noise) pixel noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(frames):
+        d = 6.0 + np.linspace(0, 1, 160)[None].repeat(120, 0)
+        for _ in range(6):
+            x, y = rng.integers(5, 120), rng.integers(5, 85)
+            d[y:y + rng.integers(15, 35), x:x + rng.integers(15, 40)] = rng.uniform(1.5, 4.0)
+        d = d.astype(np.float32)
+        if blur > 0:
+            d = cv2.GaussianBlur(d, (0, 0), blur)
+        out.append(d * (1 + noise * rng.standard_normal(d.shape)).astype(np.float32))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("blur", [0.0, 1.0, 2.0, 3.0])
+def test_the_priors_edge_blur_is_read_from_its_depth_edges(blur):
+    assert edge_blur_px(_boxes_video(blur)) == pytest.approx(blur, abs=0.3)
+
+
+def test_pixel_noise_like_the_synthetic_priors_does_not_move_the_estimate():
+    # 3% noise, then the whole map blurred by 1 px (the synthetic priors' noise is blurred so): edges blurred by 2
+    # and then 1 px read as their combined blur
+    noisy = np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in _boxes_video(2.0, noise=0.03)])
+    assert edge_blur_px(noisy) == pytest.approx(np.hypot(2.0, 1.0), abs=0.3)
+
+
+def test_a_prior_without_depth_edges_gives_no_estimate_and_the_range_falls_back():
+    wall = np.repeat((5.0 + np.linspace(0, 1, 160))[None, None].repeat(120, 1), 3, 0).astype(np.float32)
+    assert edge_blur_px(wall) is None
+    assert edge_blur_px(np.ones((2, 120, 160), np.float32)) is None
+    assert mover_range_px(None, wall) == 1
+    assert mover_range_px(None, None) == 1
+
+
+def test_the_depth_discrepancy_range_follows_the_blur_unless_given():
+    assert mover_range_px(None, _boxes_video(1.0)) == 1
+    assert mover_range_px(None, _boxes_video(2.0)) == 2
+    assert mover_range_px(None, _boxes_video(6.0)) == 4  # at most 4 px
+    assert mover_range_px(0, _boxes_video(2.0)) == 0  # as given
+    assert mover_range_px(3, None) == 3

@@ -130,8 +130,13 @@ class OptimConfig:
     depth_mover_suspect: float = 0.5
     # each discrepancy measured to the nearest of the prior at the pixel and the prior's farthest and nearest values
     # within this many px (0: the value at the pixel alone): the prior blurs across depth edges, and a static point
-    # beside one reads a mix of both sides, its own side's depth a pixel away (optim.depth_movers.blur_tolerant)
-    depth_mover_range_px: int = 1
+    # beside one reads a mix of both sides, its own side's depth a pixel or two away (optim.depth_movers.
+    # blur_tolerant). None: the prior's own edge blur, estimated (optim.edge_prior.edge_blur_px) and rounded, from
+    # 1 to 4 px (1 where the prior shows too few depth edges). 1 px was chosen on priors blurred by 1 px (the
+    # synthetic `default`, read as 1.04-1.10); on `hard`'s, blurred by 2 (read as 2.04-2.13), 1 px made static points
+    # beside depth edges movers: `hard` 0 lost 2.0 points of static kept to the test, two thirds of them within
+    # 3 px of an edge (docs/lifting.md, item 5)
+    depth_mover_range_px: int | None = None
     # stage 3: dynamic objects
     lambda_arap: float = 100.0
     lambda_ts: float = 10.0

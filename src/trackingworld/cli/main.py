@@ -49,6 +49,19 @@ def _offset_stat(text: str) -> str:
     return text
 
 
+def _range_px(text: str) -> int | None:
+    """``auto`` (None) or a whole number of pixels, 0 or more."""
+    if text == "auto":
+        return None
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not auto or a whole number of pixels (0 or more)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="trackingworld", description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--version", action="store_true", help="print the version and exit")
@@ -326,9 +339,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--depth-mover-suspect", type=float, default=d.depth_mover_suspect, metavar="FRAC",
                    help="tracks that pass the test at this fraction of --depth-mover are left out of the next "
                         "round's fields without being called movers (1: the movers only)")
-    g.add_argument("--depth-mover-range", type=int, default=d.depth_mover_range_px, metavar="PX",
+    g.add_argument("--depth-mover-range", type=_range_px, default=d.depth_mover_range_px, metavar="auto|PX",
                    help="measure each discrepancy to the nearest of the prior at the pixel and its farthest and "
-                        "nearest values within this many px (the prior's blur at depth edges; 0: the pixel's value)")
+                        "nearest values within this many px (the prior's blur at depth edges; 0: the pixel's value; "
+                        "auto, the default: the prior's edge blur, estimated, 1-4 px)")
     g.add_argument("--stage2-reject", action=argparse.BooleanOptionalAction, default=d.stage2_reject,
                    help="(not in the paper) stage 2 solved again without the observations whose offset reached "
                         "epsilon (a moving object's pull on the poses); --no-stage2-reject: one solve, the paper")

@@ -20,13 +20,14 @@ from trackingworld.optim.depth_movers import (
     log_depth_ratios,
     prior_spread,
 )
-from trackingworld.optim.edge_prior import inner_prior
+from trackingworld.optim.edge_prior import edge_blur_px, inner_prior
 from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.static_tests import spread_observations
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.tracking2d.flow_tracker import sample_image
 
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
+MOVER_RANGE_PX = (1, 4)  # the depth-discrepancy test's estimated range: from the prior's edge blur, within these
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
@@ -153,6 +154,17 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return fit_log_fields(out, shape, cells, smooth, temporal)
 
 
+def mover_range_px(setting: int | None, prior: np.ndarray | None) -> int:
+    """The depth-discrepancy test's range (px; ``OptimConfig.depth_mover_range_px``): ``setting`` where given,
+    else the edge blur of ``prior [T,H,W]`` metres (``optim.edge_prior.edge_blur_px``) rounded to whole pixels,
+    within MOVER_RANGE_PX; its lower end where the prior shows too few depth edges to tell, or is not given."""
+    if setting is not None:
+        return int(setting)
+    blur = None if prior is None else edge_blur_px(prior)
+    lo, hi = MOVER_RANGE_PX
+    return lo if blur is None else int(np.clip(round(blur), lo, hi))
+
+
 def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int], cfg: OptimConfig, prior=None):
     """The depth-discrepancy test (``optim.depth_movers``) of the tracks ``cand`` (indices) against the fields of
     the ``static`` ones, in ``cfg.depth_mover_rounds`` rounds: each fits the fields again without the movers and
@@ -160,16 +172,18 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     A missed mover that fills much of a field cell pulls the field toward its own depth and so hides itself (the
     synthetic ``default`` seed 13: a mover's discrepancy 0.13 before the field, 0.04 after it); left out of the
     field, it shows again. Returns (movers [len(cand)] bool, the static tracks' thinned observations, reused by
-    stage 3's target). ``prior [T,H,W]`` (with ``cfg.depth_mover_range_px``): each discrepancy is measured to the
-    nearest of the prior at the pixel and its extremes within that many px (``optim.depth_movers.blur_tolerant``)."""
+    stage 3's target). ``prior [T,H,W]`` (with ``cfg.depth_mover_range_px``, :func:`mover_range_px`): each discrepancy
+    is measured to the nearest of the prior at the pixel and its extremes within that many px
+    (``optim.depth_movers.blur_tolerant``)."""
     thinned = reference_ratios(static, uv, vis, xyz, D, poses)  # thinned once, filtered by static_fields
     # at most about test_frames of each track's frames, spread over its span (as the classification)
     obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
     k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
     uv_obs = uv[cand[k], t]
     spread = None  # the prior's range around each observation (its blur at depth edges)
-    if prior is not None and cfg.depth_mover_range_px > 0:
-        spread = prior_spread(t, uv_obs, prior, cfg.depth_mover_range_px)
+    reach = mover_range_px(cfg.depth_mover_range_px, prior)
+    if prior is not None and reach > 0:
+        spread = prior_spread(t, uv_obs, prior, reach)
     movers = left_out = np.zeros(len(cand), bool)
     rounds = max(cfg.depth_mover_rounds, 1)
     for r in range(rounds):

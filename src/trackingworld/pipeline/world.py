@@ -31,6 +31,7 @@ from trackingworld.pipeline.fields import (
     corrected_prior,
     depth_mover_test,
     edge_free_prior,
+    mover_range_px,
     reference_ratios,
     static_fields,
 )
@@ -211,10 +212,16 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
+            reach = mover_range_px(cfg.depth_mover_range_px, prior)
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
-                                               prior.shape[1:], cfg, prior)
+                                               prior.shape[1:], replace(cfg, depth_mover_range_px=reach), prior)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
+            info["depth_mover_range_px"] = reach
+            if cfg.verbose:
+                how = "estimated from the prior's edge blur" if cfg.depth_mover_range_px is None else "as given"
+                print(f"[depth_movers] {int(movers.sum())} tracks; discrepancies within {reach} px of the prior's "
+                      f"extremes ({how})", file=sys.stderr, flush=True)
     if cfg.own_test:
         with tm("rebuild_static"):
             vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:])
@@ -272,12 +279,12 @@ def check_optim(o: OptimConfig) -> None:
         raise InputError(f"vote_colour_sigma {o.vote_colour_sigma} / vote_k {o.vote_k} / vote_once_gap_px "
                          f"{o.vote_once_gap_px}: the colour weight's width is 0 (off) or more, the voters 1 or "
                          "more, the gap 0 px or more (inf: off)")
-    if (o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1 or o.depth_mover_range_px < 0
-            or not o.depth_mover_mad >= 0):
+    if (o.depth_mover_rounds < 1 or not 0 < o.depth_mover_suspect <= 1
+            or (o.depth_mover_range_px is not None and o.depth_mover_range_px < 0) or not o.depth_mover_mad >= 0):
         raise InputError(f"depth_mover_rounds {o.depth_mover_rounds} / depth_mover_suspect {o.depth_mover_suspect} / "
                          f"depth_mover_range_px {o.depth_mover_range_px} / depth_mover_mad {o.depth_mover_mad}: the "
                          "rounds are 1 or more, the suspects' fraction of the threshold over 0 and at most 1, the "
-                         "range 0 px or more, the threshold's MADs 0 (off) or more")
+                         "range 0 px or more (None: estimated), the threshold's MADs 0 (off) or more")
     if (o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1
             or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1):
         raise InputError(f"photo_static_grey {o.photo_static_grey} / photo_static_frac {o.photo_static_frac} / "
