@@ -2,7 +2,6 @@
 
 import cv2
 import numpy as np
-
 import pytest
 
 from trackingworld.optim.edge_prior import edge_blur_px, inner_prior

@@ -61,11 +61,12 @@ BLUR_SIGMAS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)  # px: the calibration's 
 
 
 def edge_widths(log_depth: np.ndarray, reach: int = EDGE_REACH_PX) -> np.ndarray:
-    """[E] px: at each depth-edge centre of one log-depth image ``[H,W]`` (a local maximum of the gradient along
-    its direction, steeper than EDGE_GRAD_LOG_PER_PX, the step between ``reach`` px either side at least
-    EDGE_STEP_LOG and not less than the step between ``reach / 2`` px either side), the edge's width: its step over its steepest slope. A sharp step reads 2 (the central
-    difference spreads it over two pixels), one blurred by a Gaussian of sigma px about 2.2 sigma + 0.8 for sigma
-    of 1 px or more."""
+    """[E] px: the width of each depth edge of one log-depth image ``[H,W]``, its step over its steepest slope.
+    Read at the edge centres: local maxima of the gradient along its direction, steeper than
+    EDGE_GRAD_LOG_PER_PX, where the step between ``reach`` px either side is at least EDGE_STEP_LOG and not less
+    than the step between ``reach / 2`` px either side (the far side of an object narrower than the reach turns
+    the step back). A sharp step reads 2 (the central difference spreads it over two pixels), one blurred by a
+    Gaussian of sigma px about 2.2 sigma + 0.8 for sigma of 1 px or more."""
     L = np.ascontiguousarray(log_depth, dtype=np.float32)
     gx = cv2.Sobel(L, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
     gy = cv2.Sobel(L, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
