@@ -89,13 +89,16 @@ def test_a_prior_without_depth_edges_gives_no_estimate_and_the_range_falls_back(
     wall = np.repeat((5.0 + np.linspace(0, 1, 160))[None, None].repeat(120, 1), 3, 0).astype(np.float32)
     assert edge_blur_px(wall) is None
     assert edge_blur_px(np.ones((2, 120, 160), np.float32)) is None
-    assert mover_range_px(None, wall) == 1
+    info = {}
+    assert mover_range_px(None, wall, info) == 1 and info == {"prior_edge_blur_px": None}
     assert mover_range_px(None, None) == 1
 
 
 def test_the_depth_discrepancy_range_follows_the_blur_unless_given():
     assert mover_range_px(None, _boxes_video(1.0)) == 1
-    assert mover_range_px(None, _boxes_video(2.0)) == 2
+    info = {}
+    assert mover_range_px(None, _boxes_video(2.0), info) == 2
+    assert info["prior_edge_blur_px"] == pytest.approx(2.0, abs=0.3)  # what the run's optim.json reports
     assert mover_range_px(None, _boxes_video(6.0)) == 4  # at most 4 px
     assert mover_range_px(0, _boxes_video(2.0)) == 0  # as given
     assert mover_range_px(3, None) == 3

@@ -154,13 +154,16 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
     return fit_log_fields(out, shape, cells, smooth, temporal)
 
 
-def mover_range_px(setting: int | None, prior: np.ndarray | None) -> int:
+def mover_range_px(setting: int | None, prior: np.ndarray | None, info: dict | None = None) -> int:
     """The depth-discrepancy test's range (px; ``OptimConfig.depth_mover_range_px``): ``setting`` where given,
     else the edge blur of ``prior [T,H,W]`` metres (``optim.edge_prior.edge_blur_px``) rounded to whole pixels,
-    within MOVER_RANGE_PX; its lower end where the prior shows too few depth edges to tell, or is not given."""
+    within MOVER_RANGE_PX; its lower end where the prior shows too few depth edges to tell, or is not given.
+    ``info``: receives the estimate as ``prior_edge_blur_px`` (None: none made) when one is made."""
     if setting is not None:
         return int(setting)
     blur = None if prior is None else edge_blur_px(prior)
+    if info is not None:
+        info["prior_edge_blur_px"] = blur
     lo, hi = MOVER_RANGE_PX
     return lo if blur is None else int(np.clip(round(blur), lo, hi))
 

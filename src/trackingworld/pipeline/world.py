@@ -212,14 +212,16 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
             # epipolar lines that the masks missed and no static point fails to explain (optim.depth_movers)
             cand = np.flatnonzero(~dynamic & (vis.sum(1) >= 2))
-            reach = mover_range_px(cfg.depth_mover_range_px, prior)
+            reach = mover_range_px(cfg.depth_mover_range_px, prior, info)
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
                                                prior.shape[1:], replace(cfg, depth_mover_range_px=reach), prior)
             dynamic[cand[movers]] = True
             info["depth_movers"] = int(movers.sum())
             info["depth_mover_range_px"] = reach
             if cfg.verbose:
-                how = "estimated from the prior's edge blur" if cfg.depth_mover_range_px is None else "as given"
+                blur = info.get("prior_edge_blur_px")
+                how = ("as given" if cfg.depth_mover_range_px is not None else "the prior's edge blur: too few edges"
+                       if blur is None else f"the prior's edge blur: {blur:.2f} px")
                 print(f"[depth_movers] {int(movers.sum())} tracks; discrepancies within {reach} px of the prior's "
                       f"extremes ({how})", file=sys.stderr, flush=True)
     if cfg.own_test:
