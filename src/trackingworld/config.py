@@ -133,7 +133,7 @@ class OptimConfig:
     # beside one reads a mix of both sides, its own side's depth a pixel or two away (optim.depth_movers.
     # blur_tolerant). None: the prior's own edge blur, estimated (optim.edge_prior.edge_blur_px) and rounded, from
     # 1 to 4 px (1 where the prior shows too few depth edges). 1 px was chosen on priors blurred by 1 px (the
-    # synthetic `default`, read as 1.04-1.10); on `hard`'s, blurred by 2 (read as 2.04-2.13), 1 px made static points
+    # synthetic `default`, read as 1.05-1.12); on `hard`'s, blurred by 2 (read as 2.05-2.14), 1 px made static points
     # beside depth edges movers: `hard` 0 lost 2.0 points of static kept to the test, two thirds of them within
     # 3 px of an edge (docs/lifting.md, item 5)
     depth_mover_range_px: int | None = None

@@ -56,6 +56,7 @@ def inner_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, sigma: float
 EDGE_REACH_PX = 6  # a depth step is measured between the points this far either side of its edge's centre
 EDGE_STEP_LOG = 0.15  # log-depth steps smaller than this are not depth edges (surface slopes, the prior's noise)
 EDGE_GRAD_LOG_PER_PX = 0.03  # edge centres are gradient maxima steeper than this
+EDGE_HALF_STEP = 0.95  # a step across the full reach below this times the step across half of it: a thin object
 MIN_EDGE_PIXELS = 200  # edge centres needed for an estimate
 BLUR_SIGMAS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)  # px: the calibration's blurs (a wider one is read as 4)
 
@@ -89,7 +90,7 @@ def edge_widths(log_depth: np.ndarray, reach: int = EDGE_REACH_PX) -> np.ndarray
     step = along(L, reach) - along(L, -reach)
     half = along(L, reach / 2) - along(L, -reach / 2)
     # a step, not a thin object (the far side of a pole narrower than the reach turns the step back)
-    keep = centre & (step > EDGE_STEP_LOG) & (step >= 0.95 * half)
+    keep = centre & (step > EDGE_STEP_LOG) & (step >= EDGE_HALF_STEP * half)
     return step[keep] / gc[keep]
 
 
@@ -110,7 +111,7 @@ def edge_blur_px(prior: np.ndarray, frames: int = 8) -> float | None:
     """The depth prior's blur at its depth edges: the sigma (px) of the Gaussian that, applied to a sharp step,
     gives the median edge width (:func:`edge_widths`) of ``frames`` frames of ``prior [T,H,W]`` metres spread over
     the video. None where the prior has fewer than MIN_EDGE_PIXELS edge centres (a flat or constant prior). The
-    synthetic priors blurred by 1 and 2 px read 1.1 and 2.0."""
+    synthetic priors blurred by 1 and 2 px read 1.05-1.12 and 2.05-2.14 (twenty-four scenes); 5 ms at 320x240."""
     T = len(prior)
     widths = [edge_widths(np.log(np.maximum(prior[f], 1e-6, dtype=np.float32)))
               for f in np.unique(np.linspace(0, T - 1, min(frames, T)).round().astype(int))]
