@@ -178,3 +178,24 @@ def test_photo_moving_finds_a_short_track_whose_point_shows_the_background_after
 
     with pytest.raises(InputError, match="photo_moving_share 1.5: a share from 0 \\(off\\) to 1"):
         check_optim(OptimConfig(photo_moving_share=1.5))
+
+
+def test_photo_moving_leaves_out_the_tracks_queried_at_the_images_edge():
+    """The box of :func:`_box_leaving` starting at the image's left edge: its track queried 2 px from the edge is
+    not tested (the edge's blur and the view it soon leaves), the one queried 3 px from it is, and is found."""
+    from trackingworld.optim.labels import STATIC
+    from trackingworld.pipeline.static_side import PHOTO_MOVING_EDGE_PX, photo_moving
+
+    uv, vis, qf, poses, frames, masks, depth = _box_leaving()
+    frames = np.roll(frames, -20, axis=2)  # the box at columns 0-10 in frame 0
+    depth = np.roll(depth, -20, axis=2)
+    uv[1] = [40.0, 10.0]  # the wall track, where the box passes later (hidden there, not tested)
+    assert PHOTO_MOVING_EDGE_PX == 2.0
+    got = {}
+    for x0 in (2.0, 3.0):
+        uv[0] = [[x0 + 6 * t, 24.0] for t in range(T)]
+        dynamic, info = np.zeros(3, bool), {}
+        got[x0] = photo_moving(uv, vis, qf, depth, poses, K, frames, masks, OptimConfig(photo_moving_share=0.2),
+                               dynamic, np.full(3, STATIC, np.int8), info)
+        assert info["photo_moving"]["tested"] == (2 if x0 == 2.0 else 3)
+    assert got[2.0].tolist() == [] and got[3.0].tolist() == [0]
