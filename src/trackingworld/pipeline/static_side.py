@@ -338,10 +338,10 @@ def photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg: OptimConfig, 
     q_uv = uv[cand, qf[cand]]
     inner = ((q_uv[:, 0] > PHOTO_MOVING_EDGE_PX) & (q_uv[:, 0] < W - 1 - PHOTO_MOVING_EDGE_PX)
              & (q_uv[:, 1] > PHOTO_MOVING_EDGE_PX) & (q_uv[:, 1] < H - 1 - PHOTO_MOVING_EDGE_PX))
-    cand = cand[inner]
+    cand, q_uv = cand[inner], q_uv[inner]
     if not len(cand):
         return cand
-    share, count, _, _ = colour_shares(uv[cand, qf[cand]], query_depths(depth, uv, qf, cand), qf[cand], poses,
+    share, count, _, _ = colour_shares(q_uv, query_depths(depth, uv, qf, cand), qf[cand], poses,
                                        K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
                                        cfg.photo_static_grey, depth_scales(cfg.photo_static_range), depth,
                                        cfg.occluded_static_depth)
