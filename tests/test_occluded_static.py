@@ -167,9 +167,12 @@ def test_photo_moving_finds_a_short_track_whose_point_shows_the_background_after
                          labels, info)
     assert moved.tolist() == [0] and dynamic.tolist() == [True, False, False]
     assert info["photo_moving"] == {"tested": 3, "dynamic": 1} and info["dynamic"] == 1
-    # off by default; a track seen in more than vote_short frames, or one the masks do not call static, is not tested
-    for cfg, lab in ((OptimConfig(), labels), (OptimConfig(photo_moving_share=0.2, vote_short=2), labels),
-                     (OptimConfig(photo_moving_share=0.2), np.full(3, DYNAMIC, np.int8))):
+    # the default finds it too; 0 turns the test off; a track seen in more than vote_short frames, or one the masks
+    # do not call static, is not tested
+    dyn = np.zeros(3, bool)
+    assert photo_moving(uv, vis, qf, depth, poses, K, frames, masks, OptimConfig(), dyn, labels, {}).tolist() == [0]
+    for cfg, lab in ((OptimConfig(photo_moving_share=0.0), labels), (OptimConfig(vote_short=2), labels),
+                     (OptimConfig(), np.full(3, DYNAMIC, np.int8))):
         dyn = np.zeros(3, bool)
         assert len(photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg, dyn, lab, {})) == 0
         assert not dyn.any()

@@ -399,7 +399,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--photo-moving", type=float, default=d.photo_moving_share, metavar="SHARE",
                    help="(not in the paper) a short static track of the masks' static region whose static point shows "
                         "its query colour in less than this share of the frames where it should be seen is a mover "
-                        "the masks missed (labels only; 0: off, the default; 0.2 measured)")
+                        "the masks missed (labels only; 0: off; default %(default)s)")
     g.add_argument("--prior-field", action=argparse.BooleanOptionalAction, default=d.prior_field,
                    help="static tracks outside stage 2 are fitted against the prior corrected by the field of the "
                         "optimised static points' z / prior (default); --no-prior-field: the raw prior")

@@ -324,13 +324,13 @@ PHOTO_MOVING_EDGE_PX = 2.0
 
 def photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg: OptimConfig, dynamic, labels,
                  info: dict) -> np.ndarray:
-    """(not in the paper; off by default) The reverse of :func:`photo_rescue`, for movers the masks missed: every
-    static-labelled track of the masks' static region seen in at most ``cfg.vote_short`` frames, queried more than
-    PHOTO_MOVING_EDGE_PX from the image's edge, whose query pixel's
-    static point (the video depth ``depth [T,h,w]`` there, times 0.96-1.04) shows its query colour in less than
-    ``cfg.photo_moving_share`` of at least PHOTO_MOVING_FRAMES frames where the point is outside the masks and not
-    hidden becomes dynamic (``dynamic`` updated in place). Its positions stay its static point's: this runs after
-    stage 3, since it reads the video depth. Returns the tracks changed."""
+    """(not in the paper; on by default since stop 52, ``--photo-moving 0`` turns it off) The reverse of
+    :func:`photo_rescue`, for movers the masks missed: every static-labelled track of the masks' static region seen
+    in at most ``cfg.vote_short`` frames, queried more than PHOTO_MOVING_EDGE_PX from the image's edge, whose query
+    pixel's static point (the video depth ``depth [T,h,w]`` there, times 0.96-1.04) shows its query colour in less
+    than ``cfg.photo_moving_share`` of at least PHOTO_MOVING_FRAMES frames where the point is outside the masks and
+    not hidden becomes dynamic (``dynamic`` updated in place). Its positions stay its static point's: this runs
+    after stage 3, since it reads the video depth. Returns the tracks changed."""
     if cfg.photo_moving_share <= 0:
         return np.zeros(0, np.int64)
     cand = np.flatnonzero(~dynamic & (labels == STATIC) & (vis.sum(1) <= cfg.vote_short))
