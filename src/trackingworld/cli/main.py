@@ -76,8 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fov", type=float, default=None, help="horizontal field of view, degrees (default 60)")
 
     r = sub.add_parser("run", help="world-centric dense 3D tracking of a video")
-    r.add_argument("input", help="video file or folder of images")
+    r.add_argument("input", nargs="+", help="video file or folder of images; several: one result folder each, "
+                   "DIR/<name>/ (a file's stem or a folder's name), a failure reported and the batch going on, "
+                   "DIR/batch.json the account")
     r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--skip-done", action="store_true",
+                   help="leave out a video whose output folder already holds a finished run (resume a batch)")
     g = r.add_argument_group("priors (default: weight-free, from the video itself)")
     g.add_argument("--depth", help="FILE (.npy/.npz [T,H,W] metres, or folder of 16-bit PNG mm) | MODEL (e.g. "
                    "depth-anything-v2-small, depth-pro, zoedepth, unidepth, hf:ID, or a local model folder) | "
@@ -464,16 +468,29 @@ def cmd_synth(a) -> int:
 
 def cmd_run(a) -> int:
     from trackingworld.config import InputConfig, RunConfig
+    from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch
     from trackingworld.pipeline.run import run
 
     cfg = RunConfig(
         method=a.method, device=a.device,
-        inputs=InputConfig(input=a.input, depth=a.depth, masks=a.masks, mask_prompt=a.mask_prompt,
+        inputs=InputConfig(input=a.input[0], depth=a.depth, masks=a.masks, mask_prompt=a.mask_prompt,
                            intrinsics=a.intrinsics, max_frames=a.max_frames, frame_stride=a.frame_stride,
                            resize=a.resize, cache=not a.no_cache, default_fov_deg=a.fov,
                            self_calibrate=not a.no_self_calibration),
         track2d=_track_config(a), optim=_optim_config(a),
     )
+    if len(a.input) > 1:
+        entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet)
+        failed = [e for e in entries if e["status"] == "failed"]
+        done = sum(e["status"] == "done" for e in entries)
+        print(f"{done} done, {len(entries) - done - len(failed)} skipped, {len(failed)} failed of {len(entries)}: "
+              f"{Path(a.out) / SUMMARY_FILE}")
+        for e in failed:
+            print(f"trackingworld run: {e['input']}: error: {e['error']}", file=sys.stderr)
+        return 1 if failed else 0
+    if a.skip_done and finished(Path(a.out)):
+        print(f"{a.out} already holds a finished run; left as it is (--skip-done)")
+        return 0
     run(cfg, a.out, verbose=not a.quiet)
     print(f"result written to {Path(a.out) / 'result.npz'}")
     return 0

@@ -25,6 +25,7 @@ from trackingworld.tracking2d.base import TrackResult
 METHODS = {"trackingworld": run_trackingworld, "baseline": run_baseline}
 DEFAULT_METHOD = "trackingworld"
 PRIORS_DIR = "priors"  # the cache of tracks and computed priors inside the output folder
+TIMINGS_FILE = "timings.json"  # each stage's seconds; written last
 
 
 def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: dict, verbose: bool) -> TrackResult:
@@ -87,9 +88,9 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     save_result(out_dir, result)
     write_json(out_dir / CONFIG_FILE, cfg.to_dict())
     write_json(out_dir / "priors.json", pinfo.__dict__)
-    write_json(out_dir / "timings.json", timings)
     if report:
         write_json(out_dir / "optim.json", report)
+    write_json(out_dir / TIMINGS_FILE, timings)  # last: a folder with it holds a finished run (pipeline.batch)
     if verbose:
         print(f"[run] {result.num_tracks} tracks x {result.num_frames} frames written to {out_dir} "
               f"in {timings['total']:.1f} s", file=sys.stderr)
