@@ -109,7 +109,9 @@ def main(argv=None) -> int:
     def world(r):
         return r["metrics"]["world_3d"]["all"].get("acc_avg")
 
-    dev_arg = ("" if a.device == "cpu" else f" --device {a.device}") + (f" --repeat {a.repeat}" if a.repeat > 1 else "")
+    dev_arg = (("" if a.device == "cpu" else f" --device {a.device}")
+               + (f" --repeat {a.repeat}" if a.repeat > 1 else "")
+               + ("" if a.frames == [30, 60, 120] else " --frames " + " ".join(map(str, a.frames))))
     T0 = min(results)
     base = mean(results[T0], lambda r: r["optimisation_s"])
     lines = md_table_start(
