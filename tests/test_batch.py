@@ -71,7 +71,9 @@ def test_a_failing_video_is_recorded_and_the_batch_goes_on(videos, tiny_scene, c
     assert "a.npy" in s["videos"][0]["error"] and "traceback" not in s["videos"][0]  # an InputError: one line
     assert not (videos / "out" / "a" / "result.npz").exists() and finished(videos / "out" / "b")
     assert "1 done, 0 skipped, 1 failed of 2" in captured.out
-    assert any(line.startswith("trackingworld run: ") and "a.npy" in line for line in captured.err.splitlines())
+    # one line naming the video and the file at fault
+    assert any(line.startswith("trackingworld run: ") and "videos/a: error: " in line and "depth/a.npy" in line
+               for line in captured.err.splitlines())
 
 
 def test_one_file_for_several_videos_and_clashing_names_are_refused_before_any_work(videos, tmp_path, capsys):

@@ -485,8 +485,9 @@ def cmd_run(a) -> int:
         done = sum(e["status"] == "done" for e in entries)
         print(f"{done} done, {len(entries) - done - len(failed)} skipped, {len(failed)} failed of {len(entries)}: "
               f"{Path(a.out) / SUMMARY_FILE}")
-        for e in failed:
-            print(f"trackingworld run: {e['input']}: error: {e['error']}", file=sys.stderr)
+        for e in failed:  # the input named once: most errors name their file already
+            where = "" if e["input"] in e["error"] else f" {e['input']}:"
+            print(f"trackingworld run:{where} error: {e['error']}", file=sys.stderr)
         return 1 if failed else 0
     if a.skip_done and finished(Path(a.out)):
         print(f"{a.out} already holds a finished run; left as it is (--skip-done)")
