@@ -88,6 +88,7 @@ def test_stage3_options_reach_the_config():
                                                    "--slip-px", "3", "--dc-edge-sigma", "0",
                                                    "--vote-colour-sigma", "0", "--vote-k", "5",
                                                    "--dc-target-smooth", "0.02", "--dc-field-smooth", "0.03",
+                                                   "--dc-target-order", "2",
                                                    "--dynamic-cell", "2", "--depth-mover-rounds", "4",
                                                    "--depth-mover-suspect", "0.7", "--depth-mover-mad", "4",
                                                    "--photo-static", "16",
@@ -95,14 +96,16 @@ def test_stage3_options_reach_the_config():
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
+    assert cfg.dc_target_order == 2
     assert (cfg.dynamic_cell, cfg.depth_mover_rounds, cfg.depth_mover_suspect, cfg.depth_mover_mad) == (2, 4, 0.7, 4.0)
     assert (cfg.photo_static_grey, cfg.photo_static_frac, cfg.vote_once_gap_px) == (16.0, 0.6, np.inf)
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
     assert got == (d.carry_k, d.carry_reach, d.ts_order, d.stage3_linear) == (d.carry_k, d.carry_reach, 2, "cg")
-    with pytest.raises(SystemExit):
-        build_parser().parse_args(["run", "x", "--out", "o", "--ts-order", "3"])
+    for bad in (["--ts-order", "3"], ["--dc-target-order", "3"]):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["run", "x", "--out", "o", *bad])
     # the depth-discrepancy test's range: estimated from the prior (None) unless a whole number of px is given
     assert default.depth_mover_range_px is d.depth_mover_range_px is None
     for text, want in (("auto", None), ("0", 0), ("3", 3)):

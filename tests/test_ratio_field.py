@@ -1,6 +1,7 @@
 import numpy as np
+import pytest
 
-from trackingworld.optim.ratio_field import fit_log_field
+from trackingworld.optim.ratio_field import _difference_operator, fit_log_field, fit_log_fields
 
 H, W = 240, 320
 
@@ -87,3 +88,23 @@ def test_block_tridiagonal_solve_matches_a_dense_solve():
             A[t * m:(t + 1) * m, (t - 1) * m:t * m] = off
             A[(t - 1) * m:t * m, t * m:(t + 1) * m] = off
     assert np.allclose(_block_tridiagonal_solve(diag, off, rhs).ravel(), np.linalg.solve(A, rhs.ravel()))
+
+
+def test_the_thin_plate_penalty_leaves_planes_free_and_continues_the_slopes_into_a_hole():
+    """Order 2 (the thin-plate energy of second differences): constants and planes cost nothing, curvature does;
+    across a large hole its field follows the warp more closely than the first differences' at the same weight."""
+    gy, gx = np.mgrid[0:7, 0:9].astype(float)
+    for order, free, costly in ((1, [np.ones(63)], [gx.ravel(), gx.ravel() ** 2]),
+                                (2, [np.ones(63), (gx + 2 * gy).ravel()], [(gx ** 2).ravel(), (gx * gy).ravel()])):
+        A = _difference_operator((8, 6), order)
+        assert all(abs(f @ A @ f) < 1e-9 for f in free) and all(f @ A @ f > 1 for f in costly)
+    with pytest.raises(ValueError, match="order: 3"):
+        _difference_operator((8, 6), 3)
+    rng = np.random.default_rng(0)
+    uv = rng.uniform([0, 0], [W - 1, H - 1], (6000, 2))
+    uv = uv[~((np.abs(uv[:, 0] - 160) < 80) & (np.abs(uv[:, 1] - 120) < 60))]
+    val = warp(uv) + 0.005 * rng.standard_normal(len(uv))
+    q = np.stack(np.meshgrid(np.arange(85, 236), np.arange(65, 176)), -1).reshape(-1, 2).astype(float)
+    err = {o: np.median(np.abs(fit_log_fields([(uv, val)], (H, W), (8, 6), 0.001, order=o)[0](q) - warp(q)))
+           for o in (1, 2)}
+    assert err[2] < 0.7 * err[1]

@@ -11,9 +11,11 @@ TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
 REFINE_FOCAL = ("auto", "on", "off")  # OptimConfig.refine_focal
 CARRY_STATS = ("median", "mean")  # OptimConfig.carry_stat (optim.hidden)
 STAGE3_LINEAR = ("cg", "amg")  # OptimConfig.stage3_linear (optim.stage3.solve_cg / solve_amg)
+FIELD_ORDERS = (1, 2)  # OptimConfig.dc_target_order (optim.ratio_field: first differences / thin plate)
 # the OptimConfig fields that take one of a few values, and those values (checked before a run)
 OPTIM_CHOICES = {"refine_focal": REFINE_FOCAL, "static_rebuild": STATIC_REBUILDS, "dc_target": DC_TARGETS,
-                 "ts_order": TS_ORDERS, "stage3_linear": STAGE3_LINEAR, "carry_stat": CARRY_STATS}
+                 "ts_order": TS_ORDERS, "stage3_linear": STAGE3_LINEAR, "carry_stat": CARRY_STATS,
+                 "dc_target_order": FIELD_ORDERS}
 
 
 def offset_percentile(stat: str) -> int | None:
@@ -167,6 +169,9 @@ class OptimConfig:
     # the movers' pixels (3.4% per object and frame), 2.2% at 0.001. The static side keeps 0.01: at 0.001 it
     # followed the noise of its samples (ten scenes, world static 87.1 -> 86.5, README)
     dc_target_smooth: float = 0.001
+    # ... and its penalty: 1 = first differences of the nodes (a membrane: a hole under a mover is filled flat), 2 =
+    # the thin-plate energy of second differences (the slopes around the hole continue under it)
+    dc_target_order: int = 1
     dc_field_margin_px: float = 4.0
     # (not in the paper) the prior the depth terms read, on each side of a depth edge from that side's own tracks:
     # averaged in log over the pixels the static tracks (stages 1-2) / the dynamic tracks (stage 3's target) cover,

@@ -253,6 +253,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     from trackingworld.config import (
         CARRY_STATS,
         DC_TARGETS,
+        FIELD_ORDERS,
         REFINE_FOCAL,
         STAGE3_LINEAR,
         STATIC_REBUILDS,
@@ -296,6 +297,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "smooth field of it over the image (default)")
     g.add_argument("--dc-target-smooth", type=float, default=d.dc_target_smooth, metavar="W",
                    help="with --dc-target field: the weight of the field's smoothness (larger: stiffer)")
+    g.add_argument("--dc-target-order", type=int, choices=FIELD_ORDERS, default=d.dc_target_order,
+                   help="stage 3's target field's smoothness penalty: 1 first differences (a hole under a mover is "
+                        "filled flat), 2 the thin-plate energy (its slopes continue under it)")
     g.add_argument("--dc-field-smooth", type=float, default=d.dc_field_smooth, metavar="W",
                    help="the static side's correction fields of the prior (the static tracks' corrected prior, the "
                         "depth-mover test): the weight of their smoothness")
@@ -436,6 +440,7 @@ def _optim_config(a):
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target, dc_target_smooth=a.dc_target_smooth, dc_field_smooth=a.dc_field_smooth,
+        dc_target_order=a.dc_target_order,
         dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
         carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
         carry_stat=a.carry_stat,

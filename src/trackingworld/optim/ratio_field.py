@@ -68,19 +68,31 @@ def _bilinear(uv: np.ndarray, shape: tuple[int, int], cells: tuple[int, int]) ->
     return idx, wts
 
 
-def _difference_operator(cells: tuple[int, int]) -> np.ndarray:
-    """``L^T L`` of the first differences between horizontally and vertically neighbouring nodes."""
+def _difference_operator(cells: tuple[int, int], order: int = 1) -> np.ndarray:
+    """``L^T L`` of the differences between neighbouring nodes: first differences horizontally and vertically
+    (``order`` 1, a membrane: a hole between samples is filled flat), or the thin-plate energy of second
+    differences, f_xx^2 + 2 f_xy^2 + f_yy^2 (``order`` 2: a hole continues the slopes around it; planes cost
+    nothing)."""
     gx, gy = cells
     node = np.arange((gx + 1) * (gy + 1)).reshape(gy + 1, gx + 1)
-    a = np.concatenate([node[:, :-1].ravel(), node[:-1].ravel()])
-    b = np.concatenate([node[:, 1:].ravel(), node[1:].ravel()])
     m = node.size
-    LtL = np.zeros((m, m))
-    np.add.at(LtL, (a, a), 1.0)
-    np.add.at(LtL, (b, b), 1.0)
-    np.add.at(LtL, (a, b), -1.0)
-    np.add.at(LtL, (b, a), -1.0)
-    return LtL
+    if order == 1:
+        stencils = [((node[:, :-1], -1.0), (node[:, 1:], 1.0)), ((node[:-1], -1.0), (node[1:], 1.0))]
+    elif order == 2:
+        r2 = np.sqrt(2.0)
+        stencils = [((node[:, :-2], 1.0), (node[:, 1:-1], -2.0), (node[:, 2:], 1.0)),
+                    ((node[:-2], 1.0), (node[1:-1], -2.0), (node[2:], 1.0)),
+                    ((node[:-1, :-1], r2), (node[:-1, 1:], -r2), (node[1:, :-1], -r2), (node[1:, 1:], r2))]
+    else:
+        raise ValueError(f"order: {order} is not 1 or 2")
+    rows = []
+    for st in stencils:
+        L = np.zeros((st[0][0].size, m))
+        for nodes, c in st:
+            L[np.arange(nodes.size), nodes.ravel()] += c
+        rows.append(L)
+    L = np.concatenate(rows)
+    return L.T @ L
 
 
 def fit_log_field(uv: np.ndarray, values: np.ndarray, shape: tuple[int, int], cells: tuple[int, int] = (8, 6),
@@ -100,7 +112,7 @@ def fit_log_field(uv: np.ndarray, values: np.ndarray, shape: tuple[int, int], ce
 
 
 def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int] = (8, 6), smooth: float = 0.01,
-                   temporal: float = 0.0, scale: float = 0.02, iters: int = 4) -> list:
+                   temporal: float = 0.0, scale: float = 0.02, iters: int = 4, order: int = 1) -> list:
     """Fields of a sequence of frames: ``samples`` per frame ``(uv [R,2], values [R])``, or None or no samples
     (None out). Each frame is :func:`fit_log_field`'s problem about its own median; ``temporal`` > 0 fits them
     together, with a penalty on the change of each frame's field shape from the previous frame's (node
@@ -108,10 +120,10 @@ def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int]
     ``smooth`` (per sample of the average frame per node). A node that no sample of its frame reaches then takes
     its value from the neighbouring frames, where it may be seen, before its spatial neighbours. The system is
     block tridiagonal in time and is solved exactly by block elimination (T solves of the nodes' size);
-    ``temporal`` 0: each frame's block alone."""
+    ``temporal`` 0: each frame's block alone. ``order``: the smoothness penalty's (:func:`_difference_operator`)."""
     T = len(samples)
     m = (cells[0] + 1) * (cells[1] + 1)
-    LtL = _difference_operator(cells)
+    LtL = _difference_operator(cells, order)
     frames = []  # per frame: (idx, w, y, rows, penalty) or None
     offsets = np.zeros(T)
     for t, s in enumerate(samples):

@@ -29,7 +29,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     if cfg.dc_edge_sigma_px > 0 and len(dyn):
         D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
     target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
-                           (cfg.dc_field_cells, cfg.dc_target_smooth, cfg.dc_field_margin_px, cfg.dc_field_temporal),
+                           (cfg.dc_field_cells, cfg.dc_target_smooth, cfg.dc_field_margin_px, cfg.dc_field_temporal,
+                            cfg.dc_target_order),
                            thinned)
     if not len(dyn):
         return

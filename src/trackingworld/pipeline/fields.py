@@ -79,13 +79,14 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float, float] | None = None, refs=None) -> np.ndarray:
+                  field: tuple[tuple[int, int], float, float, float, int] | None = None, refs=None) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
     robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
     gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's, temporal coupling of the frames' fields; None: OptimConfig's defaults), which
+    blurred with the object's, temporal coupling of the frames' fields, smoothness order; None: OptimConfig's
+    defaults), which
     needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
     target = D[dyn]
     if mode == "prior":
@@ -96,11 +97,12 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
     if field is None:
         field = (OptimConfig.dc_field_cells, OptimConfig.dc_target_smooth, OptimConfig.dc_field_margin_px,
-                 OptimConfig.dc_field_temporal)
-    cells, smooth, margin, temporal = field
+                 OptimConfig.dc_field_temporal, OptimConfig.dc_target_order)
+    cells, smooth, margin, temporal, order = field
     vis_t = np.ascontiguousarray(vis[dyn].T)
     if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs, temporal)
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs, temporal,
+                               order)
         for tt, f in enumerate(fields):
             w = np.flatnonzero(vis_t[tt])
             if f is not None and len(w):
@@ -122,14 +124,14 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
 
 
 def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells: tuple[int, int], smooth: float,
-                  near=None, margin: float = 0.0, refs=None, temporal: float = 0.0) -> list:
+                  near=None, margin: float = 0.0, refs=None, temporal: float = 0.0, order: int = 1) -> list:
     """Per frame, the robust smooth field (``optim.ratio_field.LogField``, log units) of the ratio camera z /
     prior of the ``static`` tracks' thinned observations (None for a frame without any). ``near`` (track
     indices) with ``margin`` px: the static observations this close to one of theirs visible in the frame are
     left out while at least MIN_FIELD_SAMPLES remain. ``refs``: the thinned observations of a superset of
     ``static`` already made (``reference_ratios``), kept where their track is in ``static``. ``temporal`` > 0:
-    the frames' fields are fitted together, each one's shape held near its neighbours' in time
-    (``ratio_field.fit_log_fields``)."""
+    the frames' fields are fitted together, each one's shape held near its neighbours' in time; ``order``: the
+    smoothness penalty's (both ``ratio_field.fit_log_fields``)."""
     if refs is None:
         n, t, ratio = reference_ratios(static, uv, vis, xyz, D, poses)
     else:
@@ -151,7 +153,7 @@ def static_fields(static, uv, vis, xyz, D, poses, shape: tuple[int, int], cells:
             if (~close).sum() >= MIN_FIELD_SAMPLES:
                 ref_uv, ref_ratio = ref_uv[~close], ref_ratio[~close]
         out.append((ref_uv, np.log(np.maximum(ref_ratio, 1e-6))))
-    return fit_log_fields(out, shape, cells, smooth, temporal)
+    return fit_log_fields(out, shape, cells, smooth, temporal, order=order)
 
 
 def mover_range_px(setting: int | None, prior: np.ndarray | None, info: dict | None = None) -> int:
