@@ -87,6 +87,10 @@ def test_one_file_for_several_videos_and_clashing_names_are_refused_before_any_w
     rc = main(["run", frames, str(videos / "elsewhere" / "a"), "--out", str(tmp_path / "o"), "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "'a'" in err and len(err.splitlines()) == 1
+    rc = main(["run", frames, str(videos / "videos" / "b"), "--out", str(tmp_path / "o"), "--quiet",
+               "--photo-moving", "1.5"])  # a bad setting: refused once for the batch, not once per video
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "photo_moving_share 1.5" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
 
 

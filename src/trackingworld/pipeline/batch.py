@@ -19,7 +19,7 @@ from trackingworld.config import RunConfig
 from trackingworld.errors import InputError
 from trackingworld.io.atomic import write_json
 from trackingworld.io.result import RESULT_FILE
-from trackingworld.pipeline.run import TIMINGS_FILE, run
+from trackingworld.pipeline.run import TIMINGS_FILE, check_run, run
 from trackingworld.priors.sources import depth_source, mask_source
 
 SUMMARY_FILE = "batch.json"
@@ -78,6 +78,7 @@ def run_batch(cfg: RunConfig, inputs: list[str], out_root: str | Path, skip_done
     finished run (:func:`finished`) is not run again. ``out_root/batch.json`` (atomic) is rewritten after every
     video. Returns one entry per input: ``input``, ``out``, ``status`` (done / skipped / failed), ``seconds``,
     and for a failure ``error`` (one line) and ``traceback`` (for an error that is not an InputError)."""
+    check_run(cfg)  # a bad setting fails once, before any video, not once per video
     check_per_video(cfg)
     names = video_names(inputs)
     root = Path(out_root)

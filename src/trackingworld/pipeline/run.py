@@ -55,8 +55,8 @@ def _warn(message: str | None, verbose: bool) -> None:
         warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
-def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
-    out_dir = Path(out_dir)
+def check_run(cfg: RunConfig) -> None:
+    """The settings that need no input: InputError on one line before any work (also once for a whole batch)."""
     if cfg.method not in METHODS:
         raise InputError(f"unknown method {cfg.method!r} (available: {', '.join(METHODS)})")
     if cfg.device.startswith("cuda"):
@@ -69,6 +69,11 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     check_track2d(cfg.track2d)
     if cfg.track2d.tracker == "file" and cfg.inputs.resize:
         raise InputError(f"{cfg.track2d.tracks_file}: precomputed tracks are at the input resolution; drop --resize")
+
+
+def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
+    out_dir = Path(out_dir)
+    check_run(cfg)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     inp = load_inputs(cfg.inputs, verbose)
