@@ -473,7 +473,7 @@ def cmd_synth(a) -> int:
 
 def cmd_run(a) -> int:
     from trackingworld.config import InputConfig, RunConfig
-    from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch
+    from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch, summary
     from trackingworld.pipeline.run import run
 
     cfg = RunConfig(
@@ -486,14 +486,14 @@ def cmd_run(a) -> int:
     )
     if len(a.input) > 1:
         entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet)
-        failed = [e for e in entries if e["status"] == "failed"]
-        done = sum(e["status"] == "done" for e in entries)
-        print(f"{done} done, {len(entries) - done - len(failed)} skipped, {len(failed)} failed of {len(entries)}: "
+        n = summary(entries, len(entries))
+        print(f"{n['done']} done, {n['skipped']} skipped, {n['failed']} failed of {n['inputs']}: "
               f"{Path(a.out) / SUMMARY_FILE}")
-        for e in failed:  # the input named once: most errors name their file already
-            where = "" if e["input"] in e["error"] else f" {e['input']}:"
-            print(f"trackingworld run:{where} error: {e['error']}", file=sys.stderr)
-        return 1 if failed else 0
+        for e in entries:  # the input named once: most errors name their file already
+            if e["status"] == "failed":
+                where = "" if e["input"] in e["error"] else f" {e['input']}:"
+                print(f"trackingworld run:{where} error: {e['error']}", file=sys.stderr)
+        return 1 if n["failed"] else 0
     if a.skip_done and finished(Path(a.out)):
         print(f"{a.out} already holds a finished run; left as it is (--skip-done)")
         return 0

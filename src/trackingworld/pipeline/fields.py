@@ -86,8 +86,7 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
     robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
     gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
     blurred with the object's, temporal coupling of the frames' fields, smoothness order; None: OptimConfig's
-    defaults), which
-    needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
+    defaults), which needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
     target = D[dyn]
     if mode == "prior":
         return target
