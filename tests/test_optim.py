@@ -567,7 +567,7 @@ def test_stage3_target_field_follows_the_priors_smooth_warp_where_one_scale_cann
     target = partial(prior_fields.stage3_target, "field", xyz, uv, vis, dyn=dyn, static=static, poses=c2w, K=K,
                      shape=(240, 320))
     assert np.allclose(target(D=D), target(D=D_border))
-    no_margin = ((8, 6), 0.01, 0.0, 3.0, 1)
+    no_margin = prior_fields.FieldSettings((8, 6), 0.01, 0.0, 3.0, 1)
     shift = np.abs(np.log(target(D=D_border, field=no_margin) / target(D=D, field=no_margin)))
     assert (d_near < 3).sum() > 50 and np.median(shift) > 0.005
 
@@ -593,11 +593,12 @@ def test_stage3_target_field_follows_a_warp_that_peaks_under_the_object():
     target = partial(prior_fields.stage3_target, "field", xyz, uv, vis, D, dyn, static, c2w, K, (240, 320))
     d = OptimConfig()
     # the field's error alone: the applied correction against the true warp's inverse
-    err = {(o, s): np.median(np.abs(np.log(target(field=(d.dc_field_cells, s, d.dc_field_margin_px,
-                                                          d.dc_field_temporal, o)) / D[dyn]) + log_warp[dyn]))
+    field = prior_fields.FieldSettings.stage3(d)
+    err = {(o, s): np.median(np.abs(np.log(target(field=replace(field, smooth=s, order=o)) / D[dyn])
+                                    + log_warp[dyn]))
            for o, s in ((d.dc_target_order, d.dc_target_smooth), (1, 0.01), (1, 0.001))}
-    assert np.allclose(target(), target(field=(d.dc_field_cells, d.dc_target_smooth, d.dc_field_margin_px,
-                                               d.dc_field_temporal, d.dc_target_order)))  # the defaults are read
+    assert field == prior_fields.FieldSettings()  # the dataclass's defaults are OptimConfig's
+    assert np.allclose(target(), target(field=field))  # and None reads them
     best = err[d.dc_target_order, d.dc_target_smooth]
     assert best < 0.007 and best < 0.5 * err[1, 0.01] and best < err[1, 0.001]
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from trackingworld import load_result
 from trackingworld.cli.main import main
 from trackingworld.config import InputConfig, Track2DConfig
 from trackingworld.eval.trajectory import camera_metrics
@@ -323,3 +324,27 @@ def test_focal_self_calibration_declines_without_translation():
     tr, _ = _tracks_of_points(50.0, rotate_only=True)
     f, info = estimate_focal(tr, np.ones(len(tr.tracks), bool), (320, 240))
     assert f is None and "reason" in info and info["skipped"]["homography"] > 0
+
+
+def test_a_batch_loads_its_depth_model_once(tiny_scene, tmp_path, tiny_depth_anything, monkeypatch):
+    """Two videos with one depth model: the model is read once, and each video's prior is its own."""
+    import shutil
+
+    from trackingworld.loaded_models import release
+    from trackingworld.priors import depth_models
+
+    loads = []
+    load = depth_models.load_depth_model
+    monkeypatch.setattr(depth_models, "load_depth_model", lambda *a, **k: loads.append(a) or load(*a, **k))
+    release()
+    for name, T in (("a", 8), ("b", 6)):
+        (tmp_path / name).mkdir()
+        for f in sorted((tiny_scene / "input" / "frames").iterdir())[:T]:
+            shutil.copy(f, tmp_path / name / f.name)
+    try:
+        assert main(["run", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "out"), "--depth",
+                     str(tiny_depth_anything), "--masks", "none", "--method", "baseline", "--quiet"]) == 0
+    finally:
+        release()
+    assert len(loads) == 1
+    assert [load_result(tmp_path / "out" / n).depth.shape[0] for n in "ab"] == [8, 6]

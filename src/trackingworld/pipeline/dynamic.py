@@ -13,7 +13,7 @@ from trackingworld.geometry import focal_length, transform, unproject
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
-from trackingworld.pipeline.fields import camera_depths, edge_free_prior, stage3_target
+from trackingworld.pipeline.fields import FieldSettings, camera_depths, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
 
@@ -29,9 +29,7 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     if cfg.dc_edge_sigma_px > 0 and len(dyn):
         D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
     target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
-                           (cfg.dc_field_cells, cfg.dc_target_smooth, cfg.dc_field_margin_px, cfg.dc_field_temporal,
-                            cfg.dc_target_order),
-                           thinned)
+                           FieldSettings.stage3(cfg), thinned)
     if not len(dyn):
         return
     qf = queries[:, 0].astype(np.int64)

@@ -7,6 +7,8 @@ camera-to-world ``[T,4,4]``)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -28,6 +30,23 @@ from trackingworld.tracking2d.flow_tracker import sample_image
 
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 MOVER_RANGE_PX = (1, 4)  # the depth-discrepancy test's estimated range: from the prior's edge blur, within these
+
+
+@dataclass(frozen=True)
+class FieldSettings:
+    """Stage 3's depth-target field (``optim.ratio_field``); the defaults are OptimConfig's."""
+
+    cells: tuple[int, int] = OptimConfig.dc_field_cells  # grid cells (gx, gy) over the image
+    smooth: float = OptimConfig.dc_target_smooth  # the smoothness penalty's weight
+    margin_px: float = OptimConfig.dc_field_margin_px  # static tracks this close to a visible dynamic one left out
+    temporal: float = OptimConfig.dc_field_temporal  # coupling of the frames' fields in time
+    order: int = OptimConfig.dc_target_order  # the smoothness penalty: 1 first differences, 2 thin plate
+
+    @classmethod
+    def stage3(cls, cfg: OptimConfig) -> FieldSettings:
+        """The settings ``cfg`` gives stage 3's target field."""
+        return cls(cfg.dc_field_cells, cfg.dc_target_smooth, cfg.dc_field_margin_px, cfg.dc_field_temporal,
+                   cfg.dc_target_order)
 
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
@@ -79,14 +98,13 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,
-                  field: tuple[tuple[int, int], float, float, float, int] | None = None, refs=None) -> np.ndarray:
+                  field: FieldSettings | None = None, refs=None) -> np.ndarray:
     """Stage 3's depth-consistency target ``[Nd,T]`` metres of the dynamic tracks ``dyn``: the raw prior
     ``D[dyn]`` (``prior``, the paper), times each frame's median ratio z / prior over the visible ``static``
     tracks (``frame``), times that ratio propagated by IDW from the nearest static tracks (``local``), or times a
-    robust smooth field of it over the image (``field``: ``optim.ratio_field``; ``field`` = (grid cells (gx,
-    gy), smoothness, margin px: the static tracks this close to a visible dynamic one are left out, their prior
-    blurred with the object's, temporal coupling of the frames' fields, smoothness order; None: OptimConfig's
-    defaults), which needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
+    robust smooth field of it over the image (``field``: ``optim.ratio_field`` with the settings ``field``, None:
+    OptimConfig's defaults; the static tracks within its margin of a visible dynamic one are left out, their prior
+    blurred with the object's), which needs the image ``shape`` (h, w)); ``refs``: see :func:`static_fields`."""
     target = D[dyn]
     if mode == "prior":
         return target
@@ -94,14 +112,11 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
         raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
     if mode == "field" and shape is None:
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
-    if field is None:
-        field = (OptimConfig.dc_field_cells, OptimConfig.dc_target_smooth, OptimConfig.dc_field_margin_px,
-                 OptimConfig.dc_field_temporal, OptimConfig.dc_target_order)
-    cells, smooth, margin, temporal, order = field
+    f = field or FieldSettings()
     vis_t = np.ascontiguousarray(vis[dyn].T)
     if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, cells, smooth, dyn, margin, refs, temporal,
-                               order)
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, f.cells, f.smooth, dyn, f.margin_px, refs,
+                               f.temporal, f.order)
         for tt, f in enumerate(fields):
             w = np.flatnonzero(vis_t[tt])
             if f is not None and len(w):

@@ -33,6 +33,7 @@ from trackingworld.errors import InputError
 from trackingworld.geometry import intrinsics_matrix, scale_intrinsics
 from trackingworld.io.cache import cached, file_identity
 from trackingworld.io.priors import fill_invalid_depth
+from trackingworld.loaded_models import kept_model, model_key
 from trackingworld.pipeline.inputs import Inputs
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.priors.align import disparity_to_depth
@@ -126,7 +127,8 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         from trackingworld.priors.depth_models import DepthPrediction, load_depth_model
 
         def run_model():
-            p = load_depth_model(ic.depth, cfg.device).predict(inp.frames, verbose)
+            model = kept_model("depth", model_key(ic.depth, cfg.device), lambda: load_depth_model(ic.depth, cfg.device))
+            p = model.predict(inp.frames, verbose)
             return {"values": p.values, "kind": np.array(p.kind), "focal": np.array(p.focal_px or np.nan)}
 
         key = {**base_key, "model": file_identity(ic.depth)}  # a local folder by its files, a hub id by name
@@ -138,8 +140,12 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         from trackingworld.priors.mask_models import load_mask_model
 
         prompt = ic.mask_prompt or DEFAULT_PROMPT
-        z = cached(path("masks_model"), {**base_key, "model": ic.masks, "prompt": prompt},
-                   lambda: {"masks": load_mask_model(ic.masks, cfg.device).predict(inp.frames, prompt, verbose)},
+
+        def run_mask_model():
+            model = kept_model("masks", model_key(ic.masks, cfg.device), lambda: load_mask_model(ic.masks, cfg.device))
+            return {"masks": model.predict(inp.frames, prompt, verbose)}
+
+        z = cached(path("masks_model"), {**base_key, "model": ic.masks, "prompt": prompt}, run_mask_model,
                    "mask model", verbose)
         masks = z["masks"].astype(bool)
         info.masks = f"{ic.masks} (prompt {prompt!r})"

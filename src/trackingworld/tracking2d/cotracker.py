@@ -83,7 +83,11 @@ class CoTrackerTracker:
 
     @classmethod
     def from_spec(cls, cfg: CoTrackerConfig) -> CoTrackerTracker:
-        return cls(load_cotracker(cfg.spec, cfg.device), cfg)
+        """The tracker over the predictor ``cfg.spec`` names, loaded once per process (``loaded_models``)."""
+        from trackingworld.loaded_models import kept_model, model_key
+
+        return cls(kept_model("tracker", model_key(cfg.spec, cfg.device), lambda: load_cotracker(cfg.spec, cfg.device)),
+                   cfg)
 
     def _video_tensor(self, frames: np.ndarray):
         import torch
