@@ -67,11 +67,17 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default="cpu", help="where the optimisation runs (cpu | cuda | cuda:N)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
+    ap.add_argument("--name", help="results file stem (default: scaling_<preset>[_<device>])")
+    ap.add_argument("--scene", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a SceneConfig field of the rendered video (repeatable), e.g. cam_speed=0.025 for a longer "
+                         "video inside the room")
     ap.add_argument("--repeat", type=int, default=1,
                     help="passes over every window; each window's fastest is kept (runs on a busy machine vary)")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_scaling_", a.keep)
-    full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False)
+    scene_over = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.scene)}
+    full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False,
+                            **scene_over)
     Tmax = max(a.frames)
     windows = [(T, start) for T in sorted(a.frames) for start in range(0, Tmax - T + 1, T)]
     runs: dict[tuple[int, int], dict] = {}  # the fastest pass of each window
@@ -111,11 +117,13 @@ def main(argv=None) -> int:
 
     dev_arg = (("" if a.device == "cpu" else f" --device {a.device}")
                + (f" --repeat {a.repeat}" if a.repeat > 1 else "")
-               + ("" if a.frames == [30, 60, 120] else " --frames " + " ".join(map(str, a.frames))))
+               + ("" if a.frames == [30, 60, 120] else " --frames " + " ".join(map(str, a.frames)))
+               + "".join(f" --scene {kv}" for kv in a.scene) + (f" --name {a.name}" if a.name else ""))
     T0 = min(results)
     base = mean(results[T0], lambda r: r["optimisation_s"])
     lines = md_table_start(
-        f"# Optimisation cost against the number of frames (`{a.preset}` scene, {a.size[0]}x{a.size[1]}, priors "
+        f"# Optimisation cost against the number of frames (`{a.preset}` scene"
+        f"{''.join(', ' + kv for kv in a.scene)}, {a.size[0]}x{a.size[1]}, priors "
         f"given, seed {a.seed}, optimisation on {a.device})",
         f"Command: `.venv/bin/python benchmarks/bench_scaling.py{dev_arg}`",
         "| frames | windows | tracks | visible observations | optimisation [s] | x of the shortest | "
@@ -145,7 +153,7 @@ def main(argv=None) -> int:
                          f"{r['optim']['dynamic']:,} | {r['optimisation_s']:.1f} | " +
                          " | ".join(f"{tm.get(s, 0.0):.1f}" for s in OPT_STAGES) +
                          f" | {fmt(m['camera']['ate_pct_path'], 2)} | {fmt(world(r), 1)} |")
-    stem = f"scaling_{a.preset}" + ("" if a.device == "cpu" else "_" + a.device.replace(":", "_"))
+    stem = a.name or f"scaling_{a.preset}" + ("" if a.device == "cpu" else "_" + a.device.replace(":", "_"))
     write_results(stem, lines, {str(k): v for k, v in results.items()})
     return 0
 

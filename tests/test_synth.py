@@ -66,3 +66,19 @@ def test_seed_determinism(tmp_path):
     a = render_and_write(tmp_path / "a", "easy", seed=5, frames=3, size=(48, 32), verbose=False)
     b = render_and_write(tmp_path / "b", "easy", seed=5, frames=3, size=(48, 32), verbose=False)
     np.testing.assert_array_equal(np.load(a / "input" / "depth.npy"), np.load(b / "input" / "depth.npy"))
+
+
+def test_a_camera_path_that_leaves_the_room_is_refused(tmp_path, capsys):
+    """240 frames at the default speed walk the camera out through a wall: refused on one line before anything is
+    written; at half the speed the same length stays inside."""
+    from trackingworld.cli.main import main
+    from trackingworld.synth.scene import make_scene
+
+    assert main(["synth", str(tmp_path / "s"), "--frames", "240", "--size", "32x24"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "leaves the room at frame" in err[0] and "cam_speed" in err[0]
+    assert not (tmp_path / "s").exists()
+    scene = make_scene("default", 0, frames=240, cam_speed=0.025)
+    lo, hi = np.array([-4.5, -2.2, -3.0]), np.array([4.5, 1.3, 9.0])
+    eyes = scene.poses_c2w[:, :3, 3]
+    assert ((eyes > lo) & (eyes < hi)).all()

@@ -466,7 +466,10 @@ def _optim_config(a):
 def cmd_synth(a) -> int:
     from trackingworld.synth import render_and_write
 
-    out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov)
+    try:
+        out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov)
+    except ValueError as e:
+        raise InputError(f"synth --preset {a.preset} --seed {a.seed}: {e}") from e
     print(f"scene written to {out} (inputs in {out / 'input'}, ground truth in {out / 'gt.npz'})")
     return 0
 

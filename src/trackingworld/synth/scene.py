@@ -127,8 +127,12 @@ def make_scene(cfg: SceneConfig | str = "default", seed: int = 0, **overrides) -
     room_lo, room_hi = np.array([-4.5, -2.2, -3.0]), np.array([4.5, 1.3, 9.0])
     prims.append(Primitive(ROOM, (room_hi - room_lo) / 2, _static(T, I3, (room_hi + room_lo) / 2),
                            int(rng.integers(1 << 30)), 2.2, color(), name="room"))
-    # Static clutter on the floor, spread in front of the camera path.
     eyes = cams[:, :3, 3]
+    outside = np.flatnonzero(np.any((eyes <= room_lo) | (eyes >= room_hi), axis=1))
+    if len(outside):  # it would render the room's outside: no texture, no ground truth worth the name
+        raise ValueError(f"{T} frames at cam_speed {cfg.cam_speed} m/frame: the camera leaves the room at frame "
+                         f"{outside[0]}; render fewer frames or lower cam_speed (and cam_turn_deg, mover_speed)")
+    # Static clutter on the floor, spread in front of the camera path.
 
     def clear_of_camera(path: np.ndarray, radius: float) -> bool:
         """True when no point of ``path [M,3]`` comes within ``radius`` (x-z plane) of any camera centre."""
