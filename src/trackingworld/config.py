@@ -96,6 +96,11 @@ class OptimConfig:
     # lambda_dc). Lower trusts the parallax over the prior's smooth warp, higher the prior's per-frame scale; ten
     # synthetic scenes at 0.3 / 0.1 / 0.03 gained on some and lost on others, 1 kept (docs/results.md, stop 40)
     ba_dc_weight: float = 1.0
+    # with this > 0 (radians; not in the paper) each point's depth term in stage 2's bundle adjustment is weighed
+    # by p0^2 / (p0^2 + a^2), a the angle its first and last observed camera centres see it under: a point seen
+    # from far apart is placed by its parallax rather than by the prior's smooth warp, one seen from nearby by the
+    # prior (optim.stage2.parallax_weights). 0: every point alike, the paper
+    ba_dc_parallax_rad: float = 0.0
     dc_space: str = "log"  # stage-2 depth residual: log(z / D) (default) | metres (the paper as written)
     lambda_asap: float = 5.0
     epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object

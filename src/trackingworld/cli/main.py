@@ -282,6 +282,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--ba-dc-weight", type=float, default=d.ba_dc_weight, metavar="X",
                    help="stage 2's bundle adjustment weighs the depth term by --lambda-dc times this (below 1: the "
                         "parallax trusted over the prior's shape)")
+    g.add_argument("--ba-dc-parallax", type=float, default=d.ba_dc_parallax_rad, metavar="RAD",
+                   help="stage 2's depth term per point times p0^2 / (p0^2 + a^2), a the angle (rad) its first and "
+                        "last cameras see it under, p0 this: points seen from far apart placed by their parallax "
+                        "(0: every point alike, the paper)")
     g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
     g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
     g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
@@ -437,6 +441,7 @@ def _optim_config(a):
         solver=a.solver, clip_len=a.clip_len, inlier_px=a.inlier_px, epsilon=a.epsilon, offset_stat=a.offset_stat,
         test_stat=a.test_stat, static_outliers=a.static_outliers, stage2_reject=a.stage2_reject,
         lambda_ba=a.lambda_ba, lambda_dc=a.lambda_dc, ba_dc_weight=a.ba_dc_weight,
+        ba_dc_parallax_rad=a.ba_dc_parallax,
         lambda_asap=a.lambda_asap, lambda_arap=a.lambda_arap, lambda_ts=a.lambda_ts, ts_order=a.ts_order,
         stage3_linear=a.stage3_linear,
         dc_target=a.dc_target, dc_target_smooth=a.dc_target_smooth, dc_field_smooth=a.dc_field_smooth,

@@ -62,6 +62,9 @@ class BAProblem:
     # focal length (px) of the Huber thresholds; None: K's. A refined focal keeps the starting one here, so the
     # kernel stays the same in pixels: with the current focal, pixel errors would get cheaper as f grows.
     kernel_focal: float | None = None
+    # per observation [M]: a factor on the depth term (its Huber threshold divided by it), None: 1 everywhere
+    # (OptimConfig.ba_dc_parallax_rad, :func:`parallax_weights`)
+    dc_weight: torch.Tensor | None = None
 
     @staticmethod
     def from_tracks(uv: np.ndarray, depth: np.ndarray, vis: np.ndarray, K: np.ndarray, cfg: OptimConfig,
@@ -77,7 +80,8 @@ class BAProblem:
 
     def subset(self, keep: torch.Tensor) -> BAProblem:
         """The same problem with only the observations ``keep`` [M] bool (points and frames numbered as before)."""
-        return replace(self, pt=self.pt[keep], fr=self.fr[keep], uv=self.uv[keep], depth=self.depth[keep])
+        return replace(self, pt=self.pt[keep], fr=self.fr[keep], uv=self.uv[keep], depth=self.depth[keep],
+                       dc_weight=None if self.dc_weight is None else self.dc_weight[keep])
 
     def with_focal_scale(self, phi) -> BAProblem:
         """The same problem with fx and fy multiplied by ``exp(phi)`` (phi a float or a 0-d tensor)."""
@@ -99,7 +103,14 @@ class BAProblem:
         """Huber thresholds from the eliminated offsets: pixels [M] and depth-residual units [M]."""
         c_uv = self.lambda_asap * z.clamp_min(1e-3) / (2 * self.lambda_ba * self.kernel_f)
         c_d = self.lambda_asap * self.depth_scale(z) / (2 * max(self.lambda_dc, 1e-12))
+        if self.dc_weight is not None:
+            c_d = c_d / self.dc_weight.clamp_min(1e-12)
         return c_uv, c_d
+
+    @property
+    def dc_w(self):
+        """The depth term's factor: 1, or per observation [M] (``dc_weight``)."""
+        return 1.0 if self.dc_weight is None else self.dc_weight
 
     def depth_scale(self, z: torch.Tensor) -> torch.Tensor:
         """Metres of camera depth per unit of the depth residual at depth z [M]."""
@@ -126,11 +137,11 @@ def loss(R, t, X, p: BAProblem) -> torch.Tensor:
     Y, r_uv, r_d = residuals(R, t, X, p)
     e_uv, e_d = r_uv.norm(dim=-1), r_d.abs()
     if not p.offsets:
-        return (p.lambda_ba * e_uv**2 + p.lambda_dc * e_d**2).mean()
+        return (p.lambda_ba * e_uv**2 + p.lambda_dc * p.dc_w * e_d**2).mean()
     c_uv, c_d = p.thresholds(Y[:, 2])
     cost = p.lambda_ba * _huber(e_uv, c_uv)
     if p.lambda_dc > 0:
-        cost = cost + p.lambda_dc * _huber(e_d, c_d)
+        cost = cost + p.lambda_dc * p.dc_w * _huber(e_d, c_d)
     return cost.mean()
 
 
@@ -157,7 +168,7 @@ def explicit_objective(R, t, X, O, p: BAProblem) -> torch.Tensor:
     asap = (o_t + o_r.abs()) if p.offsets else torch.zeros_like(o_r)
     if p.kernel_focal is not None:  # a refined focal: the tangential offset priced at the starting focal
         asap = asap + o_t * (p.focal / p.kernel_f - 1)
-    return (p.lambda_ba * (r_uv**2).sum(-1) + p.lambda_dc * r_d**2 + p.lambda_asap * asap).mean()
+    return (p.lambda_ba * (r_uv**2).sum(-1) + p.lambda_dc * p.dc_w * r_d**2 + p.lambda_asap * asap).mean()
 
 
 def closed_form_offsets(R, t, X, p: BAProblem) -> torch.Tensor:
@@ -200,7 +211,7 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
         c_uv, c_d = p.thresholds(Y[:, 2])
         w_uv = (c_uv / r_uv.norm(dim=-1).clamp_min(1e-12)).clamp(max=1)
         w_d = (c_d / r_d.abs().clamp_min(1e-12)).clamp(max=1)
-    W = torch.stack([p.lambda_ba * w_uv, p.lambda_ba * w_uv, p.lambda_dc * w_d], -1) / M
+    W = torch.stack([p.lambda_ba * w_uv, p.lambda_ba * w_uv, p.lambda_dc * p.dc_w * w_d], -1) / M
     ez = torch.zeros_like(Y[:, None])
     ez[..., 2] = 1.0 / p.depth_scale(Y[:, 2])[:, None]
     JY = torch.cat([lie.project_jacobian(Y, p.K), ez], 1)  # [M,3,3]
@@ -469,6 +480,26 @@ def solve_adam(R, t, X, p: BAProblem, iters: int = 2000, lr: float = 1e-3, log=N
         pk = p.with_focal_scale(phi)
         return BASolution(Rn, tn, Xp.detach(), float(explicit_objective(Rn, tn, Xp, O, pk)), pk.K.detach(),
                           O.detach())
+
+
+def parallax_weights(uv: np.ndarray, depth: np.ndarray, obs: np.ndarray, query_frame: np.ndarray,
+                     poses_c2w: np.ndarray, K: np.ndarray, p0: float) -> np.ndarray:
+    """Each point's factor on stage 2's depth term, ``p0^2 / (p0^2 + a^2)`` ``[n]``: ``a`` (radians) the angle
+    between the rays from the camera centres of its first and last observations (``obs [n,T]``) to the point its
+    query pixel (``uv [n,T,2]`` px, ``query_frame [n]``) unprojects to at the prior depth (``depth [n,T]``
+    metres), under the starting poses (camera-to-world ``[T,4,4]``). A point seen from far apart (a >> p0) is
+    placed by its parallax, one seen from nearby (a << p0) by the prior, as with every point alike."""
+    n = len(obs)
+    q = query_frame.astype(np.int64)
+    rows = np.arange(n)
+    ray = np.concatenate([uv[rows, q], np.ones((n, 1))], 1) @ np.linalg.inv(K).T  # camera, z = 1
+    X = np.einsum("nij,nj->ni", poses_c2w[q, :3, :3], ray * depth[rows, q][:, None]) + poses_c2w[q, :3, 3]
+    first = obs.argmax(1)
+    last = obs.shape[1] - 1 - obs[:, ::-1].argmax(1)
+    a, b = X - poses_c2w[first, :3, 3], X - poses_c2w[last, :3, 3]
+    cos = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-12)
+    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    return p0**2 / (p0**2 + angle**2)
 
 
 def init_points(R, t, p: BAProblem) -> torch.Tensor:
