@@ -112,11 +112,11 @@ def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tupl
         raise ValueError(f"dc_target: {mode!r} is not {' or '.join(DC_TARGETS)}")
     if mode == "field" and shape is None:
         raise ValueError("dc_target 'field' needs the image shape (h, w)")
-    f = field or FieldSettings()
+    fs = field or FieldSettings()
     vis_t = np.ascontiguousarray(vis[dyn].T)
     if mode == "field":
-        fields = static_fields(static, uv, vis, xyz, D, poses, shape, f.cells, f.smooth, dyn, f.margin_px, refs,
-                               f.temporal, f.order)
+        fields = static_fields(static, uv, vis, xyz, D, poses, shape, fs.cells, fs.smooth, dyn, fs.margin_px, refs,
+                               fs.temporal, fs.order)
         for tt, f in enumerate(fields):
             w = np.flatnonzero(vis_t[tt])
             if f is not None and len(w):
