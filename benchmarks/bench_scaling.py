@@ -25,6 +25,7 @@ import numpy as np
 from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import SceneConfig
 
 
 def cut_scene(scene: Path, out: Path, start: int, T: int) -> Path:
@@ -74,8 +75,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1,
                     help="passes over every window; each window's fastest is kept (runs on a busy machine vary)")
     a = ap.parse_args(argv)
+    scene_over = {}  # each --scene value in its SceneConfig field's own type (frames and counts are int)
+    for kv in a.scene:
+        k, _, v = kv.partition("=")
+        if k not in SceneConfig.__dataclass_fields__:
+            ap.error(f"--scene {kv}: {k!r} is not a SceneConfig field")
+        scene_over[k] = type(getattr(SceneConfig(), k))(v)
     work = scratch_dir("bench_scaling_", a.keep)
-    scene_over = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.scene)}
     full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False,
                             **scene_over)
     Tmax = max(a.frames)
