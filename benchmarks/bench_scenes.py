@@ -81,10 +81,14 @@ def parse_track(flags: str) -> Track2DConfig:
     return _track_config(p.parse_args(shlex.split(flags)))
 
 
-def tracker_code() -> str:
-    """A digest of the 2D tracker's source files: cached tracks made by other code are made again."""
+def tracker_code(tracker: str = "flow") -> str:
+    """A digest of the source files of the 2D tracker ``tracker`` (``Track2DConfig.tracker``): cached tracks made
+    by other code are made again. ``cotracker.py`` counts only for the CoTracker tracker, so a change to the model
+    loading does not re-track the weight-free scenes."""
     h = hashlib.sha256()
     for f in sorted((Path(tracking2d.__file__).parent).glob("*.py")):
+        if f.name == "cotracker.py" and tracker != "cotracker3":
+            continue
         h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
@@ -96,7 +100,7 @@ def cached_scene(cache: Path, preset: str, seed: int, track2d: Track2DConfig) ->
     tracks = scene / "tracks.npz"
     stamp = scene / "stamp.json"
     want = json.loads(json.dumps({"version": __version__, "preset": preset, "seed": seed,
-                                  "track2d": {**asdict(track2d), "code": tracker_code()}}))
+                                  "track2d": {**asdict(track2d), "code": tracker_code(track2d.tracker)}}))
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
     if not (tracks.exists() and have == want):
         if {**have, "track2d": None} != {**want, "track2d": None}:  # the scene itself: rendered again

@@ -2,6 +2,7 @@ import json
 
 import imageio.v3 as iio
 import numpy as np
+import pytest
 
 from trackingworld.geometry import invert_pose, project, transform
 
@@ -82,3 +83,24 @@ def test_a_camera_path_that_leaves_the_room_is_refused(tmp_path, capsys):
     lo, hi = np.array([-4.5, -2.2, -3.0]), np.array([4.5, 1.3, 9.0])
     eyes = scene.poses_c2w[:, :3, 3]
     assert ((eyes > lo) & (eyes < hi)).all()
+
+
+def test_movers_turn_back_before_they_leave_the_room():
+    from trackingworld.synth.scene import _bounce, make_scene
+
+    lo, hi = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    c = np.array([[0.3, -0.2, 0.9], [1.5, 0.0, 0.0], [-3.5, 0.0, 0.0], [5.2, 0.0, 0.0]])
+    # inside: the very same numbers; outside: reflected at the bound, as often as it takes
+    np.testing.assert_array_equal(_bounce(c, lo, hi)[0], c[0])
+    np.testing.assert_allclose(_bounce(c, lo, hi)[1:, 0], [0.5, 0.5, 0.8])
+    # a 120-frame default scene whose movers, on straight paths, leave the room (seed 1: three of them)
+    room_lo, room_hi = np.array([-4.5, -2.2, -3.0]), np.array([4.5, 1.3, 9.0])
+    sc = make_scene("default", 1, frames=120)
+    movers = [p for p in sc.prims if p.moving]
+    for p in movers:
+        reach = p.size.max()
+        c = p.poses[:, :3, 3]
+        assert np.all((c >= room_lo - reach - 1e-9) & (c <= room_hi + reach + 1e-9)), p.name
+    # and they still move with the speed they were given
+    steps = np.linalg.norm(np.diff(movers[0].poses[:, :3, 3], axis=0), axis=1)
+    assert np.median(steps) == pytest.approx(sc.config.mover_speed, rel=1e-6)

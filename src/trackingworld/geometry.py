@@ -49,6 +49,15 @@ def nearest_pixel(uv: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarra
     return x, y
 
 
+def in_image(uv: np.ndarray, W: int, H: int, margin: float = 0.0) -> np.ndarray:
+    """Whether pixels ``uv [M,2]`` lie in a W x H image, at least ``margin`` px inside its edge [M] bool. Pixel
+    centres are at integers, so the image's edge is at -0.5 and W - 0.5 (H - 0.5); margin 0.5 keeps the pixels
+    that can be sampled bilinearly, from 0 to W - 1. The bounds are included."""
+    lo = margin - 0.5
+    return ((uv[:, 0] >= lo) & (uv[:, 0] <= W - 0.5 - margin)
+            & (uv[:, 1] >= lo) & (uv[:, 1] <= H - 0.5 - margin))
+
+
 def project(xyz_cam: np.ndarray, K: np.ndarray, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """Camera points ``[...,3]`` -> (pixels ``[...,2]``, depth ``[...]``). Depth is clamped at ``eps``
     for the division only, so points behind the camera give finite pixels."""

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackingworld.geometry import invert_pose, nearest_pixel, project, transform, unproject
+from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform, unproject
 
 
 def static_behind_occluders(uv: np.ndarray, vis: np.ndarray, qf: np.ndarray, z_q: np.ndarray, poses_c2w: np.ndarray,
@@ -81,7 +81,7 @@ def _look(X: np.ndarray, uv_t: np.ndarray, depth_t: np.ndarray, w2c_t: np.ndarra
     c = transform(w2c_t, X)
     p, _ = project(c, K)
     z = c[:, 2]
-    inside = (z > 0) & (p[:, 0] >= -0.5) & (p[:, 0] <= W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= H - 0.5)
+    inside = (z > 0) & in_image(p, W, H)
     hidden = np.zeros(len(X), bool)
     k = np.flatnonzero(inside)
     x, y = nearest_pixel(p[k], W, H)

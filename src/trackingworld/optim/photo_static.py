@@ -22,7 +22,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from trackingworld.geometry import invert_pose, nearest_pixel, project, transform, unproject
+from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform, unproject
 from trackingworld.tracking2d.flow_tracker import sample_image
 
 # the frames where the point lies within this many px of the coarse masks do not count: the test reads the masks'
@@ -66,7 +66,7 @@ def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndar
     H, W = open_t.shape
     uv, z = project(transform(w2c_t, X), K, eps=1e-9)
     uv = uv.astype(np.float32)
-    tested = (z > 1e-9) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    tested = (z > 1e-9) & in_image(uv, W, H, margin=0.5)
     x, y = nearest_pixel(uv, W, H)
     tested &= open_t[y, x]
     if depth_t is not None:

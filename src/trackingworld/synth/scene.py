@@ -81,12 +81,27 @@ def _static(T: int, R: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.repeat(pose_from_rt(R, c)[None], T, axis=0)
 
 
-def _moving(T: int, c0: np.ndarray, vel: np.ndarray, spin_deg: float, axis: np.ndarray, rng) -> np.ndarray:
+def _bounce(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Centres ``c [T,3]`` of a straight path folded back into the box ``lo``..``hi`` [3], as a ball bounces off
+    walls: a coordinate that would pass a bound is reflected at it (as often as it takes). Coordinates inside the
+    box are returned exactly as given, so a path that never reaches a bound is unchanged."""
+    span = hi - lo
+    m = np.mod(c - lo, 2 * span)
+    folded = lo + np.where(m <= span, m, 2 * span - m)
+    return np.where((c >= lo) & (c <= hi), c, folded)
+
+
+def _moving(T: int, c0: np.ndarray, vel: np.ndarray, spin_deg: float, axis: np.ndarray, rng,
+            bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Poses ``[T,4,4]`` of a rigid mover: its centre from ``c0`` at ``vel`` m/frame (bouncing off ``bounds``,
+    the box its centre must stay in, when given), spinning at ``spin_deg`` per frame about ``axis`` (None: the
+    vertical axis after a random initial rotation)."""
     R0 = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix() if axis is None else np.eye(3)
     t = np.arange(T, dtype=np.float64)
     ax = np.array([0.0, 1.0, 0.0]) if axis is None else axis
     Rs = Rotation.from_rotvec(np.outer(np.deg2rad(spin_deg) * t, ax)).as_matrix() @ R0
-    return pose_from_rt(Rs, c0[None] + vel[None] * t[:, None])
+    c = c0[None] + vel[None] * t[:, None]
+    return pose_from_rt(Rs, c if bounds is None else _bounce(c, *bounds))
 
 
 def _camera_path(cfg: SceneConfig, rng: np.random.Generator) -> np.ndarray:
@@ -155,14 +170,20 @@ def make_scene(cfg: SceneConfig | str = "default", seed: int = 0, **overrides) -
             prims.append(Primitive(BOX, h, _static(T, yaw, c), int(rng.integers(1 << 30)),
                                    rng.uniform(3, 6), color(), name=f"clutter{i}"))
 
-    def mover(name: str, c0: np.ndarray, vel: np.ndarray, masked: bool) -> Primitive:
+    def mover(name: str, c0: np.ndarray, vel: np.ndarray, masked: bool, grow: float = 1.0) -> Primitive:
+        """A sphere or box of a random size times ``grow``, its centre moving from ``c0`` at ``vel``. It turns
+        back where it would leave the room entirely (its centre ``reach`` past a wall, the floor or the ceiling),
+        so a long video keeps its movers; the turn is not at the wall itself because the scenes of the benchmarks
+        have movers that dip into the floor or start inside a wall, and they stay as they were rendered."""
         if rng.random() < 0.5:
             size = np.array([rng.uniform(0.25, 0.45)])
             kind = SPHERE
         else:
             size = rng.uniform([0.2, 0.2, 0.2], [0.45, 0.45, 0.45])
             kind = BOX
-        poses = _moving(T, c0, vel, rng.uniform(-3, 3), None, rng)
+        size = size * grow
+        reach = float(size.max())  # a sphere's radius, a box's largest half-extent
+        poses = _moving(T, c0, vel, rng.uniform(-3, 3), None, rng, (room_lo - reach, room_hi + reach))
         return Primitive(kind, size, poses, int(rng.integers(1 << 30)), rng.uniform(4, 8), color(), True,
                          masked, name)
 
@@ -193,7 +214,5 @@ def make_scene(cfg: SceneConfig | str = "default", seed: int = 0, **overrides) -
         local = np.array([rng.uniform(-1.5, 1.5), rng.uniform(-0.6, 0.4), rng.uniform(5.5, 7.0)])
         c_mid = transform(mid, local)
         vel = np.array([rng.choice([-1, 1]) * cfg.mover_speed * 0.8, 0.0, 0.0])
-        p = mover(f"bg_mover{i}", c_mid - vel * (T // 2), vel, False)
-        p.size = p.size * 1.6
-        prims.append(p)
+        prims.append(mover(f"bg_mover{i}", c_mid - vel * (T // 2), vel, False, grow=1.6))
     return Scene(cfg, K, cams, prims, seed)
