@@ -135,3 +135,27 @@ def test_near_masks_finds_the_tracks_a_mask_passes():
 def test_depth_scales_are_symmetric_about_one():
     np.testing.assert_allclose(depth_scales(0.04), [0.96, 0.98, 1.0, 1.02, 1.04])
     assert len(depth_scales(0.1)) == 11 and depth_scales(0.0).tolist() == [1.0]
+
+
+def test_the_patch_test_tells_a_sliding_texture_from_a_still_one():
+    """Fine stripes (+-5.8 grey levels, 8 px period) on grey, a camera that does not move: where the stripes stay,
+    the point passes with and without the patch test; where they slide half a period (a mover over a smooth
+    texture), each pixel's colour stays within 12 grey levels of its query colour, so the colour test still
+    passes, and the 5x5 patch does not."""
+    T, H, W = 4, 32, 48
+    xs = np.arange(W)
+    still = np.repeat((128 + 5.8 * np.sin(2 * np.pi * xs / 8))[None, :, None], H, 0)
+    frames = np.repeat(np.repeat(still[None], T, 0), 3, 3).astype(np.float32)
+    slid = frames.copy()
+    slid[1:] = np.roll(frames[1:], 4, axis=2)  # half a period in frames 1-3
+    K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
+    poses = np.tile(np.eye(4), (T, 1, 1))
+    uv = np.stack(np.meshgrid(np.arange(8.0, 40.0), np.arange(8.0, 24.0)), -1).reshape(-1, 2).astype(np.float32)
+    z = np.full(len(uv), 5.0)
+    qf = np.zeros(len(uv), int)
+    open_ = np.ones((T, H, W), bool)
+    for imgs, passes_patch in ((frames, True), (slid, False)):
+        args = (uv, z, qf, poses, K, imgs, open_)
+        assert static_hypothesis(*args, scales=np.ones(1))[0].all()  # the colour alone: both pass
+        static = static_hypothesis(*args, scales=np.ones(1), patch_grey=4.0)[0]
+        assert static.all() if passes_patch else not static.any()

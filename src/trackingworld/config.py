@@ -299,6 +299,9 @@ class OptimConfig:
     # ... and the frames where the consistent video depth at the projection is less than occluded_static_depth times the
     # point's (a nearer surface hides it) are not tested (False: they are; docs/lifting.md, stop 49)
     photo_static_hidden: bool = True
+    # ... and a frame matches only where the 5x5 patch at the projection (mean removed) is within this many grey levels
+    # of the query pixel's on the mean too (0: the colour alone; optim.photo_static)
+    photo_static_patch: float = 0.0
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least occluded_static_in_view frames where the point is in view, and at least occluded_static_frames of its

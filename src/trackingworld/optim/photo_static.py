@@ -11,6 +11,10 @@ its colour there is compared with its query colour. Only the frames where the pr
 - a background point matches its query colour in nearly all of them;
 - a point on a mover does not: once the mover has gone, the projection lands on whatever the background holds.
 
+With ``patch_grey`` > 0 a frame matches only where the 5x5 patch around the projection (its mean removed) is
+also within ``patch_grey`` of the query pixel's, on the mean over the patch: one pixel's colour does not tell a
+background point from a mover that slides a few pixels over a smooth texture, its patch does.
+
 A track that matches in at least ``frac`` of at least ``min_frames`` such frames is that static point. Its 2D
 track becomes the point's projection and it is visible in the query frame and the frames it matched. Why by hand:
 it is a per-track plane-sweep of one pixel over a handful of depths, a few array operations per frame; no library
@@ -23,7 +27,7 @@ import cv2
 import numpy as np
 
 from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform, unproject
-from trackingworld.tracking2d.flow_tracker import sample_image
+from trackingworld.tracking2d.flow_tracker import patch_offsets, sample_image, sample_patches
 
 # the frames where the point lies within this many px of the coarse masks do not count: the test reads the masks'
 # sure-static region (optim.labels.mask_regions with this margin)
@@ -32,6 +36,7 @@ MASK_MARGIN_PX = 2
 # times the frames, both of which grow with the video. The 120-frame video: 1.6 s with every frame, 0.57 s with 32;
 # at 32, the five 48-frame `hard` scenes kept 0.0-0.7 points fewer static tracks static than with every frame
 MAX_TESTED_FRAMES = 48
+PATCH_RADIUS = 2  # the patch test's half-side (px): 5x5, the 2D tracker's patch for the points it finds again
 
 
 def depth_scales(span: float, step: float = 0.02) -> np.ndarray:
@@ -57,12 +62,14 @@ def near_masks(uv: np.ndarray, vis: np.ndarray, masks: np.ndarray, px: float) ->
 
 
 def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndarray, w2c_t: np.ndarray,
-          K: np.ndarray, grey: float, depth_t: np.ndarray | None = None,
-          in_front: float = 0.9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          K: np.ndarray, grey: float, depth_t: np.ndarray | None = None, in_front: float = 0.9,
+          patch: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points ``X [n,3]`` seen by one camera (``w2c_t [4,4]``, blurred frame ``blur_t [H,W,3]``, open region
     ``open_t [H,W]``): (pixels [n,2] float32; tested [n] bool: in front of the camera, in the image, in the open
     region and, with the frame's depth ``depth_t [H,W]`` metres, not hidden (that depth at least ``in_front`` times
-    the point's); matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB)."""
+    the point's); matched [n] bool: tested and within ``grey`` of ``colour [n,3]``, max over RGB, and with
+    ``patch`` (the query patches [n,P,3] of :func:`query_patches`, a tolerance in grey levels) the patch there
+    within that tolerance of its query patch, on the mean absolute difference)."""
     H, W = open_t.shape
     uv, z = project(transform(w2c_t, X), K, eps=1e-9)
     uv = uv.astype(np.float32)
@@ -74,21 +81,27 @@ def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndar
     idx = np.flatnonzero(tested)
     matched = np.zeros(len(X), bool)
     matched[idx] = np.abs(sample_image(blur_t, uv[idx]).astype(np.float32) - colour[idx]).max(1) <= grey
+    idx = np.flatnonzero(matched)
+    if patch is not None and len(idx):
+        patches, tol = patch
+        offs = patch_offsets(PATCH_RADIUS)
+        matched[idx] = np.abs(sample_patches(blur_t, uv[idx], offs) - patches[idx]).mean((1, 2)) <= tol
     return uv, tested, matched
 
 
 def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, open_: np.ndarray,
            w2c: np.ndarray, K: np.ndarray, grey: float, depth: np.ndarray | None = None,
-           in_front: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+           in_front: float = 0.9, patch: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(frames tested [n], frames matched [n]) of the static points ``X [n,3]`` (query frames ``qf [n]``, query
     colours ``colour [n,3]`` float32) over every frame but the query frame, strided to at most MAX_TESTED_FRAMES
-    (:func:`_look`; ``depth [T,H,W]``: the frames where a point is hidden are not tested)."""
+    (:func:`_look`; ``depth [T,H,W]``: the frames where a point is hidden are not tested; ``patch``: the patch
+    test's query patches and tolerance)."""
     tested = np.zeros(len(X), np.int32)
     matched = np.zeros(len(X), np.int32)
     T = len(open_)
     for t in range(0, T, -(-T // MAX_TESTED_FRAMES)):
         _, ok, same = _look(X, colour, blur[t], open_[t], w2c[t], K, grey, None if depth is None else depth[t],
-                            in_front)
+                            in_front, patch)
         other = qf != t
         tested += ok & other
         matched += same & other
@@ -105,9 +118,20 @@ def query_colours(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndar
     return out
 
 
+def query_patches(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndarray:
+    """``[n,P,3]`` float32: the blurred frames' ``blur [T,H,W,3]`` patch of PATCH_RADIUS around each query pixel
+    ``uv_q [n,2]`` of its query frame ``qf [n]``, each patch's mean removed (bilinear)."""
+    offs = patch_offsets(PATCH_RADIUS)
+    out = np.zeros((len(qf), len(offs), 3), np.float32)
+    for t in np.unique(qf):
+        who = np.flatnonzero(qf == t)
+        out[who] = sample_patches(blur[t], uv_q[who].astype(np.float32), offs)
+    return out
+
+
 def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
                   blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, scales: np.ndarray | None = None,
-                  depth: np.ndarray | None = None, in_front: float = 0.9):
+                  depth: np.ndarray | None = None, in_front: float = 0.9, patch_grey: float = 0.0):
     """How well each query pixel's static point shows its query colour (the arguments as
     :func:`static_hypothesis`'s): at each depth scale tried, the share of its tested frames that match; the best
     scale kept (the share, then the count; on a tie the scale nearest 1).
@@ -119,6 +143,7 @@ def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: 
     scales = scales[np.argsort(np.abs(np.log(scales)), kind="stable")]  # on a tie the scale nearest 1 is kept
     w2c = invert_pose(poses_c2w)
     colour = query_colours(uv_q, qf, blur)
+    patch = (query_patches(uv_q, qf, blur), patch_grey) if patch_grey > 0 else None
     cam = unproject(uv_q.astype(np.float64), z_q, K)  # [n,3] each query pixel at its depth, its camera's axes
 
     def points(s):  # world points at the depth scales s [n]
@@ -129,7 +154,8 @@ def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: 
     share = np.zeros(n)
     count = np.zeros(n, np.int32)
     for s in scales:
-        tested, matched = _tally(points(np.full(n, s)), qf, colour, blur, open_, w2c, K, grey, depth, in_front)
+        tested, matched = _tally(points(np.full(n, s)), qf, colour, blur, open_, w2c, K, grey, depth, in_front,
+                                 patch)
         f = matched / np.maximum(tested, 1)
         better = f + 1e-4 * matched > best
         best[better] = (f + 1e-4 * matched)[better]
@@ -140,7 +166,7 @@ def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: 
 def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
                       blur: np.ndarray, open_: np.ndarray, grey: float = 12.0, frac: float = 0.8,
                       min_frames: int = 3, scales: np.ndarray | None = None, depth: np.ndarray | None = None,
-                      in_front: float = 0.9):
+                      in_front: float = 0.9, patch_grey: float = 0.0):
     """Which tracks are static points by their colours (module docstring).
 
     ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
@@ -151,21 +177,24 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales
     tried along the query ray (default 0.96-1.04 in 5 steps), the best match fraction kept; ``depth [T,H,W]``
     metres (the consistent video depth; None: not read): a frame where it is less than ``in_front`` times the
-    point's depth at the projection hides the point there, and is not tested.
+    point's depth at the projection hides the point there, and is not tested; ``patch_grey`` > 0: a frame matches
+    only where its patch does too (module docstring).
 
     Returns (static [n] bool; X [n,3] world metres at the best scale; of the m static ones, pixels [m,T,2]
     float32, their points' projections (the query pixel at the query frame), and seen [m,T] bool, the query frame
     and the tested frames that matched)."""
     T = len(poses_c2w)
-    share, count, X, colour = colour_shares(uv_q, z_q, qf, poses_c2w, K, blur, open_, grey, scales, depth, in_front)
+    share, count, X, colour = colour_shares(uv_q, z_q, qf, poses_c2w, K, blur, open_, grey, scales, depth, in_front,
+                                            patch_grey)
     w2c = invert_pose(poses_c2w)
     static = (count >= min_frames) & (share >= frac)
     keep = np.flatnonzero(static)
     pix = np.zeros((len(keep), T, 2), np.float32)
     seen = np.zeros((len(keep), T), bool)
+    patch = (query_patches(uv_q[keep], qf[keep], blur), patch_grey) if patch_grey > 0 else None
     for t in range(T):
         pix[:, t], _, seen[:, t] = _look(X[keep], colour[keep], blur[t], open_[t], w2c[t], K, grey,
-                                         None if depth is None else depth[t], in_front)
+                                         None if depth is None else depth[t], in_front, patch)
     seen[np.arange(len(keep)), qf[keep]] = True
     pix[np.arange(len(keep)), qf[keep]] = uv_q[keep]
     return static, X, pix, seen

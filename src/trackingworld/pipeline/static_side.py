@@ -283,7 +283,8 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
                                              poses, K, blurred_frames(frames), mask_regions(masks, MASK_MARGIN_PX)[0],
                                              cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
                                              depth_scales(cfg.photo_static_range),
-                                             depth if cfg.photo_static_hidden else None, cfg.occluded_static_depth)
+                                             depth if cfg.photo_static_hidden else None, cfg.occluded_static_depth,
+                                             cfg.photo_static_patch)
     return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "photo_static")
 
 
