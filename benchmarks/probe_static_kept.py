@@ -24,8 +24,8 @@ import numpy as np
 
 from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import OptimConfig
-from trackingworld.eval.dense import static_deviation
-from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform, unproject
+from trackingworld.eval.dense import static_deviation, static_points
+from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.io.tracks import load_tracks
@@ -43,9 +43,7 @@ def off_point(tracks, visible, query_frame, gt) -> tuple[np.ndarray, np.ndarray]
     N, T = visible.shape
     depth, K = gt["depth"], gt["K"]
     H, W = depth.shape[1:]
-    q = tracks[np.arange(N), query_frame].astype(np.float64)
-    x, y = nearest_pixel(q, W, H)
-    X = transform(gt["poses_c2w"][query_frame], unproject(q, np.maximum(depth[query_frame, y, x], 1e-6), K))
+    X, _ = static_points(tracks, query_frame, depth, gt["poses_c2w"], K)
     w2c = invert_pose(gt["poses_c2w"])
     off, hidden = np.zeros((N, T), bool), np.zeros((N, T), bool)
     for t in range(T):

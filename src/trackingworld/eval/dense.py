@@ -63,21 +63,29 @@ CONSISTENT_PX = 2.0  # a static track within this of a static point's projection
 MOVED_PX = 8.0  # a mover's track at least this far from a static point's projection in some visible frame
 
 
-def static_deviation(tracks_2d: np.ndarray, visible: np.ndarray, query_frame: np.ndarray, depth: np.ndarray,
-                     poses_c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """[N] px: how far each track (``tracks_2d [N,T,2]``, ``visible [N,T]``) strays, over its visible frames,
-    from the projection of the ground-truth 3D point under its query pixel (``depth [T,H,W]``, ``poses_c2w``,
-    ``K``) held static. Small for a static point tracked well; large for a mover or a track that slipped off its
-    point. NaN where the query pixel has no depth."""
-    N, T = visible.shape
+def static_points(tracks_2d: np.ndarray, query_frame: np.ndarray, depth: np.ndarray, poses_c2w: np.ndarray,
+                  K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ground-truth 3D point under each track's query pixel (``tracks_2d [N,T,2]`` at ``query_frame [N]``,
+    ``depth [T,H,W]``, ``poses_c2w``, ``K``): (world points ``[N,3]`` metres, the query pixels' depth ``[N]``, 0
+    where there is none)."""
+    N = len(query_frame)
     H, W = depth.shape[1:]
     q = tracks_2d[np.arange(N), query_frame].astype(np.float64)
     x, y = nearest_pixel(q, W, H)
     z = depth[query_frame, y, x].astype(np.float64)
-    X = transform(poses_c2w[query_frame], unproject(q, np.maximum(z, 1e-6), K))  # [N,3] world
-    out = np.zeros(N)
+    return transform(poses_c2w[query_frame], unproject(q, np.maximum(z, 1e-6), K)), z
+
+
+def static_deviation(tracks_2d: np.ndarray, visible: np.ndarray, query_frame: np.ndarray, depth: np.ndarray,
+                     poses_c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """[N] px: how far each track (``tracks_2d [N,T,2]``, ``visible [N,T]``) strays, over its visible frames,
+    from the projection of the ground-truth 3D point under its query pixel (:func:`static_points`) held static.
+    Small for a static point tracked well; large for a mover or a track that slipped off its point. NaN where the
+    query pixel has no depth."""
+    X, z = static_points(tracks_2d, query_frame, depth, poses_c2w, K)
+    out = np.zeros(len(X))
     w2c = invert_pose(poses_c2w)
-    for t in range(T):
+    for t in range(visible.shape[1]):  # frame by frame: a dense result holds millions of tracks
         v = np.flatnonzero(visible[:, t])
         uv, _ = project(transform(w2c[t], X[v]), K)
         out[v] = np.maximum(out[v], np.linalg.norm(uv - tracks_2d[v, t], axis=-1))

@@ -108,25 +108,27 @@ def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, 
     return tested, matched
 
 
+def _at_queries(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray, sample, shape: tuple) -> np.ndarray:
+    """``[n,*shape]`` float32: ``sample(frame, pixels)`` of each query pixel ``uv_q [n,2]`` in its query frame
+    ``qf [n]`` of ``blur [T,H,W,3]``, one call per query frame."""
+    out = np.zeros((len(qf), *shape), np.float32)
+    for t in np.unique(qf):
+        who = np.flatnonzero(qf == t)
+        out[who] = sample(blur[t], uv_q[who].astype(np.float32))
+    return out
+
+
 def query_colours(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndarray:
     """``[n,3]`` float32: the blurred frames' ``blur [T,H,W,3]`` colour at each query pixel ``uv_q [n,2]`` of its
     query frame ``qf [n]`` (bilinear)."""
-    out = np.zeros((len(qf), 3), np.float32)
-    for t in np.unique(qf):
-        who = np.flatnonzero(qf == t)
-        out[who] = sample_image(blur[t], uv_q[who].astype(np.float32))
-    return out
+    return _at_queries(uv_q, qf, blur, sample_image, (3,))
 
 
 def query_patches(uv_q: np.ndarray, qf: np.ndarray, blur: np.ndarray) -> np.ndarray:
     """``[n,P,3]`` float32: the blurred frames' ``blur [T,H,W,3]`` patch of PATCH_RADIUS around each query pixel
     ``uv_q [n,2]`` of its query frame ``qf [n]``, each patch's mean removed (bilinear)."""
     offs = patch_offsets(PATCH_RADIUS)
-    out = np.zeros((len(qf), len(offs), 3), np.float32)
-    for t in np.unique(qf):
-        who = np.flatnonzero(qf == t)
-        out[who] = sample_patches(blur[t], uv_q[who].astype(np.float32), offs)
-    return out
+    return _at_queries(uv_q, qf, blur, lambda img, p: sample_patches(img, p, offs), (len(offs), 3))
 
 
 def colour_shares(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c2w: np.ndarray, K: np.ndarray,
