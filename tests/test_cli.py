@@ -92,13 +92,15 @@ def test_stage3_options_reach_the_config():
                                                    "--dynamic-cell", "2", "--depth-mover-rounds", "4",
                                                    "--depth-mover-suspect", "0.7", "--depth-mover-mad", "4",
                                                    "--photo-static", "16",
-                                                   "--photo-static-frac", "0.6", "--vote-once-gap", "inf"]))
+                                                   "--photo-static-frac", "0.6", "--photo-static-patch", "5",
+                                                   "--vote-once-gap", "inf"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
     assert cfg.dc_target_order == 2
     assert (cfg.dynamic_cell, cfg.depth_mover_rounds, cfg.depth_mover_suspect, cfg.depth_mover_mad) == (2, 4, 0.7, 4.0)
     assert (cfg.photo_static_grey, cfg.photo_static_frac, cfg.vote_once_gap_px) == (16.0, 0.6, np.inf)
+    assert cfg.photo_static_patch == 5.0
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
@@ -156,7 +158,8 @@ def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):
         with pytest.raises(InputError, match="the rounds are 1 or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     for bad in (dict(photo_static_grey=-1.0), dict(photo_static_frac=1.2), dict(photo_static_frames=0),
-                dict(photo_static_near_px=-1.0), dict(photo_static_range=1.0)):
+                dict(photo_static_near_px=-1.0), dict(photo_static_range=1.0), dict(photo_static_patch=-1.0),
+                dict(photo_static_patch=float("nan"))):
         with pytest.raises(InputError, match="tolerance is 0 \\(off\\) or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
 

@@ -110,6 +110,11 @@ def test_photo_rescue_turns_dragged_background_tracks_into_static_points(scene):
                           labels)[2]
     assert info["photo_static"]["tested"] == (labels != STATIC).sum()
     np.testing.assert_array_equal(moved2, moved[moved % 2 == 1])
+    # a patch test as well (OptimConfig.photo_static_patch): a strict one takes back fewer of them
+    dyn = np.ones(N, bool)
+    strict = photo_rescue(uv, vis, qf, D, g["poses_c2w"], g["K"], frames, masks, OptimConfig(photo_static_patch=1.0),
+                          dyn, xyz.copy(), {})[2]
+    assert len(strict) < len(moved)
     off = OptimConfig(photo_static_grey=0.0)
     dyn = np.ones(N, bool)
     same = photo_rescue(uv, vis, qf, D, g["poses_c2w"], g["K"], frames, masks, off, dyn, xyz.copy(), {})
