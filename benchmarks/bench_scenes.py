@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, tracks_file, write_results  # noqa: I001 (a sibling script module)
-from trackingworld import __version__, tracking2d
+from trackingworld import __version__, synth, tracking2d
 from trackingworld.cli.main import _optim_args, _optim_config, _track_args, _track_config
 from trackingworld.config import InputConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
@@ -85,21 +85,26 @@ def tracker_code(tracker: str = "flow") -> str:
     """A digest of the source files of the 2D tracker ``tracker`` (``Track2DConfig.tracker``): cached tracks made
     by other code are made again. ``cotracker.py`` counts only for the CoTracker tracker, so a change to the model
     loading does not re-track the weight-free scenes."""
+    return source_digest(Path(tracking2d.__file__).parent, () if tracker == "cotracker3" else ("cotracker.py",))
+
+
+def source_digest(package_dir: Path, skip: tuple[str, ...] = ()) -> str:
+    """A digest of the ``*.py`` files of a package folder, those named in ``skip`` left out."""
     h = hashlib.sha256()
-    for f in sorted((Path(tracking2d.__file__).parent).glob("*.py")):
-        if f.name == "cotracker.py" and tracker != "cotracker3":
-            continue
-        h.update(f.read_bytes())
+    for f in sorted(package_dir.glob("*.py")):
+        if f.name not in skip:
+            h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 
 def cached_scene(cache: Path, preset: str, seed: int, track2d: Track2DConfig) -> tuple[Path, Path]:
     """The scene folder and its dense tracks by ``track2d``, made when missing or made by another package
-    version, other tracking settings or other tracker code."""
+    version, other generator code (rendered again), other tracking settings or other tracker code."""
     scene = cache / f"{preset}{seed}"
     tracks = scene / "tracks.npz"
     stamp = scene / "stamp.json"
     want = json.loads(json.dumps({"version": __version__, "preset": preset, "seed": seed,
+                                  "synth": source_digest(Path(synth.__file__).parent),
                                   "track2d": {**asdict(track2d), "code": tracker_code(track2d.tracker)}}))
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
     if not (tracks.exists() and have == want):
