@@ -26,6 +26,7 @@ from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DCon
 from trackingworld.io.frames import read_frames
 from trackingworld.pipeline.tracks import track_video
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 
 def _sync(device: str) -> None:
@@ -44,7 +45,7 @@ def _reset_peak(device: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--size", type=int, nargs=2, default=[854, 480], metavar=("W", "H"))

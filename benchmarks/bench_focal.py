@@ -19,6 +19,7 @@ import numpy as np
 from _common import fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 # row: (depth and masks given?, intrinsics given?, self-calibrate?, stage-2 focal refinement)
 ROWS = {
@@ -36,7 +37,7 @@ ROWS = {
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--fovs", type=float, nargs="+", default=[40.0, 60.0, 90.0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")

@@ -22,6 +22,7 @@ from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_d
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 # the settings of the paper / the authors' code where this package departs from them (README)
 PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask_dynamic_px": 0.0,
@@ -87,7 +88,7 @@ ROWS = {
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="skip the Adam row (minutes)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")

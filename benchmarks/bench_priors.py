@@ -22,6 +22,7 @@ from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DCon
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 # row: (method, depth, masks, intrinsics); "given" = the scene's noisy prior file, None = weight-free default
 ROWS = {
@@ -45,7 +46,7 @@ def mask_quality(masks: np.ndarray, gt: dict) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)

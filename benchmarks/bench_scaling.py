@@ -25,7 +25,7 @@ import numpy as np
 from _common import OPT_STAGES, fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
-from trackingworld.synth.scene import SceneConfig
+from trackingworld.synth.scene import PRESETS, SceneConfig
 
 
 def cut_scene(scene: Path, out: Path, start: int, T: int) -> Path:
@@ -62,7 +62,7 @@ def cut_scene(scene: Path, out: Path, start: int, T: int) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--frames", type=int, nargs="+", default=[30, 60, 120])
     ap.add_argument("--size", type=int, nargs=2, default=[320, 240], metavar=("W", "H"))
     ap.add_argument("--seed", type=int, default=0)

@@ -33,6 +33,7 @@ from trackingworld import __version__, synth, tracking2d
 from trackingworld.cli.main import _optim_args, _optim_config, _track_args, _track_config
 from trackingworld.config import InputConfig, RunConfig, Track2DConfig
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 TEN_SCENES = ("default:0-7", "hard:0-1")
 # (label, path in the metrics, decimals) of each column
@@ -58,6 +59,9 @@ def parse_scenes(specs: list[str]) -> list[tuple[str, int]]:
         preset, _, seeds = spec.partition(":")
         if not seeds:
             raise SystemExit(f"bench_scenes: scene {spec!r} must be PRESET:SEED or PRESET:FIRST-LAST")
+        if preset not in PRESETS:
+            raise SystemExit(f"bench_scenes: scene {spec!r}: unknown preset {preset!r}; "
+                             f"choose from {', '.join(PRESETS)}")
         a, _, b = seeds.partition("-")
         out += [(preset, s) for s in range(int(a), int(b or a) + 1)]
     return out

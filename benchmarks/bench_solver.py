@@ -19,6 +19,7 @@ from _common import fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_f
 from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.synth import render_and_write
+from trackingworld.synth.scene import PRESETS
 
 SOLVERS = {"lm (default)": "lm", "adam (paper schedule)": "adam"}
 STAGES = ("stage1", "stage2", "stage3")
@@ -26,7 +27,7 @@ STAGES = ("stage1", "stage2", "stage3")
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="default")
+    ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
