@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from trackingworld.loaded_models import kept_model, model_key, release
+from trackingworld.loaded_models import kept_model, loaded, model_key, release
 
 
 @pytest.fixture(autouse=True)
@@ -55,3 +55,17 @@ def test_a_checkpoint_rewritten_on_disk_has_another_key(tmp_path):
     os.utime(ckpt, ns=(1, 1))
     assert model_key(str(ckpt), "cpu") != key
     assert model_key("hf:some/model", "cpu") == model_key("hf:some/model", "cpu")  # a hub name by its name
+
+
+def test_loaded_keeps_one_model_per_spec_and_device():
+    release()
+    calls = []
+
+    def load(spec, device):
+        calls.append((spec, device))
+        return object()
+
+    a = loaded("depth", "hf:x", "cpu", load)
+    assert loaded("depth", "hf:x", "cpu", load) is a and calls == [("hf:x", "cpu")]
+    assert loaded("depth", "hf:x", "cuda", load) is not a and calls[-1] == ("hf:x", "cuda")
+    release()

@@ -39,6 +39,12 @@ def kept_model(kind: str, key: Hashable, load: Callable[[], M]) -> M:
     return model
 
 
+def loaded(kind: str, spec: str, device: str, load: Callable[[str, str], M]) -> M:
+    """:func:`kept_model` of ``load(spec, device)``, known by :func:`model_key` of ``spec`` and ``device``: how the
+    pipeline asks for a depth, mask or tracker model."""
+    return kept_model(kind, model_key(spec, device), lambda: load(spec, device))
+
+
 def release(kind: str | None = None) -> None:
     """Drop the kept model of ``kind`` (None: of every kind)."""
     if kind is None:

@@ -33,7 +33,7 @@ from trackingworld.errors import InputError
 from trackingworld.geometry import intrinsics_matrix, scale_intrinsics
 from trackingworld.io.cache import cached, file_identity
 from trackingworld.io.priors import fill_invalid_depth
-from trackingworld.loaded_models import kept_model, model_key
+from trackingworld.loaded_models import loaded
 from trackingworld.pipeline.inputs import Inputs
 from trackingworld.pipeline.lift import sample_maps
 from trackingworld.priors.align import disparity_to_depth
@@ -127,8 +127,7 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         from trackingworld.priors.depth_models import DepthPrediction, load_depth_model
 
         def run_model():
-            model = kept_model("depth", model_key(ic.depth, cfg.device), lambda: load_depth_model(ic.depth, cfg.device))
-            p = model.predict(inp.frames, verbose)
+            p = loaded("depth", ic.depth, cfg.device, load_depth_model).predict(inp.frames, verbose)
             return {"values": p.values, "kind": np.array(p.kind), "focal": np.array(p.focal_px or np.nan)}
 
         key = {**base_key, "model": file_identity(ic.depth)}  # a local folder by its files, a hub id by name
@@ -142,7 +141,7 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         prompt = ic.mask_prompt or DEFAULT_PROMPT
 
         def run_mask_model():
-            model = kept_model("masks", model_key(ic.masks, cfg.device), lambda: load_mask_model(ic.masks, cfg.device))
+            model = loaded("masks", ic.masks, cfg.device, load_mask_model)
             return {"masks": model.predict(inp.frames, prompt, verbose)}
 
         z = cached(path("masks_model"), {**base_key, "model": ic.masks, "prompt": prompt}, run_mask_model,

@@ -84,10 +84,9 @@ class CoTrackerTracker:
     @classmethod
     def from_spec(cls, cfg: CoTrackerConfig) -> CoTrackerTracker:
         """The tracker over the predictor ``cfg.spec`` names, loaded once per process (``loaded_models``)."""
-        from trackingworld.loaded_models import kept_model, model_key
+        from trackingworld.loaded_models import loaded
 
-        return cls(kept_model("tracker", model_key(cfg.spec, cfg.device), lambda: load_cotracker(cfg.spec, cfg.device)),
-                   cfg)
+        return cls(loaded("tracker", cfg.spec, cfg.device, load_cotracker), cfg)
 
     def _video_tensor(self, frames: np.ndarray):
         import torch
