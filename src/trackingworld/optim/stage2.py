@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from trackingworld.config import OptimConfig, offset_percentile
+from trackingworld.geometry import transform, unproject
 from trackingworld.optim import lie
 from trackingworld.optim.linalg import pcg, sparse_csr
 
@@ -489,11 +490,9 @@ def parallax_weights(uv: np.ndarray, depth: np.ndarray, obs: np.ndarray, query_f
     query pixel (``uv [n,T,2]`` px, ``query_frame [n]``) unprojects to at the prior depth (``depth [n,T]``
     metres), under the starting poses (camera-to-world ``[T,4,4]``). A point seen from far apart (a >> p0) is
     placed by its parallax, one seen from nearby (a << p0) by the prior, as with every point alike."""
-    n = len(obs)
     q = query_frame.astype(np.int64)
-    rows = np.arange(n)
-    ray = np.concatenate([uv[rows, q], np.ones((n, 1))], 1) @ np.linalg.inv(K).T  # camera, z = 1
-    X = np.einsum("nij,nj->ni", poses_c2w[q, :3, :3], ray * depth[rows, q][:, None]) + poses_c2w[q, :3, 3]
+    rows = np.arange(len(obs))
+    X = transform(poses_c2w[q], unproject(uv[rows, q].astype(np.float64), depth[rows, q].astype(np.float64), K))
     first = obs.argmax(1)
     last = obs.shape[1] - 1 - obs[:, ::-1].argmax(1)
     a, b = X - poses_c2w[first, :3, 3], X - poses_c2w[last, :3, 3]
