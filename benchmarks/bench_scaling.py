@@ -80,7 +80,10 @@ def main(argv=None) -> int:
         k, _, v = kv.partition("=")
         if k not in SceneConfig.__dataclass_fields__:
             ap.error(f"--scene {kv}: {k!r} is not a SceneConfig field")
-        scene_over[k] = type(getattr(SceneConfig(), k))(v)
+        try:
+            scene_over[k] = type(getattr(SceneConfig(), k))(v)
+        except ValueError:
+            ap.error(f"--scene {kv}: {v!r} is not of type {type(getattr(SceneConfig(), k)).__name__}")
     work = scratch_dir("bench_scaling_", a.keep)
     full = render_and_write(work / "full", a.preset, a.seed, max(a.frames), tuple(a.size), verbose=False,
                             **scene_over)

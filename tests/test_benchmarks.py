@@ -33,3 +33,13 @@ def test_bench_scenes_refuses_an_unknown_preset(tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="unknown preset 'nope'; choose from easy, default, hard"):
         importlib.import_module("bench_scenes").main(["--scenes", "nope:0", "--cache", str(tmp_path / "c")])
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("scene, says", [("nope=1", "'nope' is not a SceneConfig field"),
+                                         ("cam_speed=fast", "'fast' is not of type float"),
+                                         ("n_clutter=2.5", "'2.5' is not of type int")])
+def test_bench_scaling_refuses_a_bad_scene_field(scene, says, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        importlib.import_module("bench_scaling").main(["--scene", scene])
+    assert e.value.code == 2 and says in capsys.readouterr().err
