@@ -5,6 +5,8 @@ metres, world positions ``[N,T,3]`` metres, poses camera-to-world ``[T,4,4]``.""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import torch
 
@@ -13,25 +15,27 @@ from trackingworld.geometry import focal_length, transform, unproject
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
+from trackingworld.optim.rigid import RigidSettings, rigid_movers
 from trackingworld.pipeline.fields import FieldSettings, camera_depths, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
 
 def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: OptimConfig, dtype, device, log,
-                  info: dict, thinned=None) -> None:
+                  info: dict, thinned=None) -> np.ndarray | None:
     """``xyz[dyn]`` (in place, every frame) <- stage 3's world positions of the dynamic tracks ``dyn`` (indices):
     solved over one control track per (query frame, ``dynamic_cell`` px) cell, the other visible observations
     following their controls' depth correction, the hidden frames carried (or held). ``static`` (indices): the
     static tracks whose field sets the depth target; ``queries [N,3]`` (frame, x, y); ``D`` the prior at the tracks,
     ``prior [T,h,w]`` its maps; ``thinned``: the static tracks' thinned observations when already made
-    (:func:`~trackingworld.pipeline.fields.reference_ratios`). Counts go to ``info``."""
+    (:func:`~trackingworld.pipeline.fields.reference_ratios`). Counts go to ``info``. Returns the depth target of
+    the dynamic tracks ``[len(dyn),T]`` metres (None without dynamic tracks)."""
     D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
     if cfg.dc_edge_sigma_px > 0 and len(dyn):
         D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
     target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
                            FieldSettings.stage3(cfg), thinned)
     if not len(dyn):
-        return
+        return None
     qf = queries[:, 0].astype(np.int64)
     ctrl = cell_representatives(queries[dyn], cfg.dynamic_cell)
     cd = dyn[ctrl]
@@ -57,6 +61,17 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
         xyz[dyn] = hold_invisible(moved, vis[dyn])
     info["stage3_controls"] = int(len(ctrl))
     info["stage3_observations"] = int(obs.sum())
+    return target
+
+
+def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict) -> None:
+    """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
+    (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target)."""
+    note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
+    xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
+                                    poses.astype(np.float64), K.astype(np.float64), queries[dyn, 0].astype(np.int64),
+                                    cfg, RigidSettings(), note, dtype, device)
+    info.update(counts)
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:

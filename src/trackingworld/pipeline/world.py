@@ -26,7 +26,7 @@ from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.optim.static_tests import moving_tracks
 from trackingworld.pipeline.baseline import sample_colors
-from trackingworld.pipeline.dynamic import place_dynamic
+from trackingworld.pipeline.dynamic import place_dynamic, place_rigid
 from trackingworld.pipeline.fields import (
     corrected_prior,
     depth_mover_test,
@@ -248,8 +248,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
     with tm("stage3"):
-        place_dynamic(np.flatnonzero(dynamic), np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K,
-                      cfg, dtype, device, log, info, thinned)
+        target = place_dynamic(np.flatnonzero(dynamic), np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz,
+                               poses, K, cfg, dtype, device, log, info, thinned)
+    if cfg.rigid_movers and target is not None:
+        with tm("rigid_movers"):
+            place_rigid(np.flatnonzero(dynamic), tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps

@@ -1,0 +1,224 @@
+"""Rigid movers: one rigid motion per group of dynamic tracks, fitted to their 2D tracks (not in the paper).
+
+Stage 3's depths of a moving object are the depth prior corrected by a field fitted to the static background
+around it, and a monocular prior's warp under an object drifts as the object crosses the image: the object comes
+out a few percent too near in some frames and too far in others, a scale error the neighbour-wise ARAP term
+cannot see (it compares a few centimetres between neighbours). A rigid object seen by a camera of known poses is
+determined by its 2D tracks up to one scale for the whole video (every frame's points may be scaled about that
+frame's camera centre by the same factor), so fitting one rigid motion to a group's 2D tracks and its scale to
+the depth targets of all its frames averages the prior's warp over the whole video. The fit is stage 2's
+bundle adjustment (:func:`trackingworld.optim.stage2.solve_lm`: Huber reprojection and log-depth terms, Schur
+complement) with the object as the scene and camera-from-object poses as its unknowns; its frame is the camera's
+frame in the group's reference frame, which stays fixed.
+
+Groups (:func:`rigid_groups`): dynamic tracks are joined where they are image neighbours in a frame both are seen
+in with depths within ``depth_tol`` of each other; connected components of at least ``min_tracks``. A track keeps
+its rigid positions only where the fit explains it (median reprojection error <= ``max_px``) and a group only where
+most of it does (``min_fit``): a non-rigid object, two objects joined by one group, or static tracks in a group
+keep stage 3's positions. The rigid model also places the hidden frames of a track whose object is seen in them.
+
+Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
+poses camera-to-world ``[T,4,4]`` (OpenCV axes).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from trackingworld.geometry import invert_pose, transform
+from trackingworld.optim import lie, stage2
+
+
+@dataclass
+class RigidSettings:
+    """How groups are formed and fitted (``OptimConfig.rigid_*``)."""
+
+    neighbours: int = 6  # nearest tracks each track is tested against in its query frame
+    neighbour_px: float = 3.0  # within this image distance there
+    depth_tol: float = 0.1  # largest relative depth difference of two joined tracks there
+    min_tracks: int = 50  # smallest group kept
+    seed_tracks: int = 200  # tracks in a seed patch
+    max_seeds: int = 30  # seed patches tried
+    min_seen: int = 6  # frames a track must be seen in to join a group
+    rounds: int = 3  # fits of a group's motion, each to the tracks the one before explained
+    max_fit: int = 1500  # tracks in the bundle adjustment (the rest are fitted to its poses)
+    max_px: float = 1.0  # a track's largest median reprojection error under the rigid motion
+    min_fit: float = 0.5  # smallest fraction of a group's tracks the rigid motion explains
+    iters: int = 30
+
+
+def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
+    """Pairs ``[P,2]`` of tracks: each track with its ``neighbours`` nearest tracks seen in its query frame
+    ``qf [N]``, within ``neighbour_px`` there and at depths ``z [N,T]`` within ``depth_tol``."""
+    pairs = []
+    for t in range(vis.shape[1]):
+        q = np.flatnonzero(qf == t)
+        cand = np.flatnonzero(vis[:, t])
+        if not len(q) or len(cand) < 2:
+            continue
+        k = min(s.neighbours + 1, len(cand))
+        d, j = cKDTree(uv[cand, t]).query(uv[q, t], k=k, distance_upper_bound=s.neighbour_px)
+        d, j = d.reshape(len(q), k), j.reshape(len(q), k)
+        ok = np.isfinite(d)
+        a = np.repeat(q, k).reshape(len(q), k)[ok]
+        b = cand[j[ok]]
+        keep = (a != b) & (np.abs(np.log(np.maximum(z[a, t], 1e-6) / np.maximum(z[b, t], 1e-6))) <= s.depth_tol)
+        pairs.append(np.stack([a[keep], b[keep]], 1))
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
+
+
+def connected_to(seed: np.ndarray, members: np.ndarray, pairs: np.ndarray, N: int) -> np.ndarray:
+    """The tracks of ``members`` (bool ``[N]``) joined to any track of ``seed`` through ``pairs`` of members."""
+    a, b = pairs[:, 0], pairs[:, 1]
+    ok = members[a] & members[b]
+    _, lab = connected_components(coo_matrix((np.ones(ok.sum()), (a[ok], b[ok])), shape=(N, N)), directed=False)
+    hit = np.unique(lab[seed[members[seed]]])
+    return members & np.isin(lab, hit)
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """4x4 rigid transform taking points ``a [n,3]`` to ``b [n,3]`` (least squares)."""
+    ma, mb = a.mean(0), b.mean(0)
+    U, _, Vt = np.linalg.svd((b - mb).T @ (a - ma))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, mb - R @ ma
+    return out
+
+
+def initial_motion(X: np.ndarray, vis: np.ndarray, ref: int, min_shared: int = 6) -> np.ndarray:
+    """Object-to-world poses ``[T,4,4]`` of a group from its world positions ``X [n,T,3]``, chained frame to
+    frame outwards from ``ref`` (identity there) by the rigid fit of the tracks seen in both; NaN where the chain
+    breaks (fewer than ``min_shared`` tracks seen in two neighbouring frames)."""
+    T = vis.shape[1]
+    out = np.full((T, 4, 4), np.nan)
+    out[ref] = np.eye(4)
+    for step in (1, -1):
+        t = ref + step
+        while 0 <= t < T:
+            k = vis[:, t] & vis[:, t - step]
+            if k.sum() < min_shared:
+                break
+            out[t] = _kabsch(X[k, t - step], X[k, t]) @ out[t - step]
+            t += step
+    return out
+
+
+def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=torch.float64, device="cpu"):
+    """Rigid motion of a group: ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` depth targets (metres), ``X [n,T,3]``
+    its stage-3 world positions (the start). Returns (the solved frames [F] int, their camera-from-object (R, t)
+    tensors ``[F,3,3]``, ``[F,3]``; the object frame is the camera frame in the first of them), or None."""
+    ref = int(np.argmax(vis.sum(0)))
+    O = initial_motion(X, vis, ref)  # object-to-world; the object frame is the world frame at ref
+    frames = np.flatnonzero(np.isfinite(O[:, 0, 0]))
+    if len(frames) < 3:
+        return None
+    order = np.concatenate([[ref], frames[frames != ref]])  # stage 2 keeps its frame 0 fixed
+    w2c = invert_pose(poses)
+    cfo = w2c[order] @ O[order] @ poses[ref]  # camera-from-object, the object frame moved to the camera's at ref
+    fit = np.flatnonzero(vis[:, order].sum(1) >= 2)
+    if len(fit) < 3:
+        return None
+    if len(fit) > s.max_fit:
+        fit = np.sort(rng.choice(fit, s.max_fit, replace=False))
+    p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
+                                     cfg, dtype, device)
+    R, t = lie.c2w_to_w2c(invert_pose(cfo), dtype, device)  # camera-from-object as (R, t)
+    sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=s.iters)
+    return order, sol.R, sol.t
+
+
+def place_on_motion(uv, vis, target, motion, poses, K, cfg, dtype=torch.float64, device="cpu"):
+    """Tracks ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` fitted as points of a rigid ``motion``
+    (:func:`fit_motion`). Returns (world positions ``[n,T,3]``, NaN in the frames the motion is not solved in;
+    median reprojection error ``[n]`` px over the solved frames a track is seen in, inf where fewer than 3)."""
+    order, R, t = motion
+    n, T = vis.shape
+    pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
+    P = stage2.fit_points(R, t, pa)
+    _, r_uv, _ = stage2.residuals(R, t, P, pa)
+    err = r_uv.norm(dim=-1).detach().cpu().numpy()
+    pt = pa.pt.cpu().numpy()
+    srt = np.lexsort((err, pt))
+    counts = np.bincount(pt, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    med = np.full(n, np.inf)
+    has = counts >= 3
+    med[has] = err[srt][starts[has] + (counts[has] - 1) // 2]
+    obj_to_world = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
+    out = np.full((n, T, 3), np.nan)
+    out[:, order] = transform(obj_to_world[None], P.detach().cpu().numpy().astype(np.float64)[:, None, :])
+    return out, med
+
+
+def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.ndarray, poses: np.ndarray,
+                 K: np.ndarray, qf: np.ndarray, cfg, s: RigidSettings, log=None, dtype=torch.float64,
+                 device="cpu") -> tuple[np.ndarray, np.ndarray, dict]:
+    """World positions ``[N,T,3]`` of dynamic tracks with every rigidly moving group placed by its rigid motion
+    (stage 3's ``xyz [N,T,3]`` elsewhere). Groups are found one at a time: a seed patch (the ``seed_tracks``
+    tracks nearest a remaining track in its query frame ``qf``, at depths within ``depth_tol``) gives a motion,
+    the remaining tracks it explains (median reprojection error <= ``max_px`` over 3 or more frames) refit it,
+    and the tracks the refit explains form the group; a seed whose motion explains fewer than ``min_tracks``
+    is dropped. Returns the positions, each track's group ``[N]`` (-1: none) and counts."""
+    out = xyz.copy()
+    N, T = vis.shape
+    w2c = invert_pose(poses)
+    z = np.einsum("tj,ntj->nt", w2c[:, 2, :3], xyz) + w2c[None, :, 2, 3]
+    rng = np.random.default_rng(0)
+    seen = vis.sum(1)
+    left = seen >= s.min_seen
+    pairs = neighbour_pairs(uv, vis, z, qf, s)
+    seeds = left.copy()
+    groups = np.full(N, -1)
+    info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
+    for _ in range(s.max_seeds):
+        cand = np.flatnonzero(seeds & left)
+        if left.sum() < s.min_tracks or not len(cand):
+            break
+        info["rigid_seeds"] += 1
+        i = int(cand[np.argmax(seen[cand])])  # the longest remaining track
+        t = int(qf[i])
+        pool = np.flatnonzero(left & vis[:, t])
+        pool = pool[np.abs(np.log(np.maximum(z[pool, t], 1e-6) / max(z[i, t], 1e-6))) <= s.depth_tol]
+        near = pool[np.argsort(np.linalg.norm(uv[pool, t] - uv[i, t], axis=1))[: s.seed_tracks]]
+        seeds[near] = False
+        members = near
+        for _round in range(s.rounds):
+            motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
+                                dtype, device)
+            if motion is None:
+                break
+            idx = np.flatnonzero(left)
+            pos, med = place_on_motion(uv[idx], vis[idx], target[idx], motion, poses, K, cfg, dtype, device)
+            zr = np.einsum("tj,ntj->nt", w2c[:, 2, :3], np.nan_to_num(pos)) + w2c[None, :, 2, 3]
+            dz = np.where(vis[idx] & np.isfinite(pos[..., 0]), np.abs(np.log(np.maximum(zr, 1e-6)
+                                                                             / np.maximum(target[idx], 1e-6))), np.nan)
+            with warnings.catch_warnings():  # tracks seen in no solved frame: all-NaN rows, not good
+                warnings.simplefilter("ignore", RuntimeWarning)
+                good = (med <= s.max_px) & (np.nanmedian(dz, axis=1) <= s.depth_tol)
+            inl = np.zeros(N, bool)
+            inl[idx[good]] = True
+            members = np.flatnonzero(connected_to(near, inl, pairs, N))
+            good = np.isin(idx, members)
+            if len(members) < s.min_tracks:
+                break
+        if motion is None or len(members) < s.min_tracks:
+            continue
+        keep = good[:, None] & np.isfinite(pos[..., 0])
+        sub = out[idx]
+        sub[keep] = pos[keep]
+        out[idx] = sub
+        left[members] = False
+        groups[members] = info["rigid_groups"]
+        info["rigid_groups"] += 1
+        info["rigid_tracks"] += int(len(members))
+        if log:
+            log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames")
+    return out, groups, info
