@@ -28,7 +28,7 @@ reuse_freed_memory()  # the benchmarks run the pipeline in-process with the CLI'
 # the optimisation's stages in timings.json (what "optimisation [s]" adds up)
 OPT_STAGES = ("labels", "stage1", "stage2", "prior_field", "classify", "rebuild_static", "depth_movers",
               "static_outliers", "static_refit", "stage3", "video_depth", "photo_static",
-              "occluded_static", "photo_moving")
+              "occluded_static", "photo_moving", "rigid_movers")
 
 
 def scratch_dir(prefix: str, keep: bool = False) -> Path:

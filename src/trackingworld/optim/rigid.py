@@ -11,11 +11,14 @@ bundle adjustment (:func:`trackingworld.optim.stage2.solve_lm`: Huber reprojecti
 complement) with the object as the scene and camera-from-object poses as its unknowns; its frame is the camera's
 frame in the group's reference frame, which stays fixed.
 
-Groups (:func:`rigid_groups`): dynamic tracks are joined where they are image neighbours in a frame both are seen
-in with depths within ``depth_tol`` of each other; connected components of at least ``min_tracks``. A track keeps
-its rigid positions only where the fit explains it (median reprojection error <= ``max_px``) and a group only where
-most of it does (``min_fit``): a non-rigid object, two objects joined by one group, or static tracks in a group
-keep stage 3's positions. The rigid model also places the hidden frames of a track whose object is seen in them.
+Groups are found one at a time (:func:`rigid_movers`): the longest remaining track and the ``seed_tracks`` tracks
+nearest it in its query frame (at depths within ``depth_tol``) give a first motion; the group grows from that patch
+over image neighbours (:func:`neighbour_pairs`) through the tracks the motion explains: a median reprojection error
+of ``max_px`` or less and an 80th percentile of ``max_px80`` or less over 3 or more frames, and a depth on the motion
+within ``depth_tol`` of the target's. The motion is fitted again to the group and the group grown again
+(``rounds``); a group of fewer than ``min_tracks`` tracks is dropped. Tracks of a non-rigid object, of the
+background, or that jump from one object to another are not explained and keep stage 3's positions. A track in a
+group takes the motion's positions in every frame the motion is solved in, its hidden frames too.
 
 Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
 poses camera-to-world ``[T,4,4]`` (OpenCV axes).
@@ -24,12 +27,11 @@ poses camera-to-world ``[T,4,4]`` (OpenCV axes).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from trackingworld.geometry import invert_pose, transform
@@ -38,20 +40,24 @@ from trackingworld.optim import lie, stage2
 
 @dataclass
 class RigidSettings:
-    """How groups are formed and fitted (``OptimConfig.rigid_*``)."""
+    """How groups are formed and fitted (:func:`rigid_movers`)."""
 
     neighbours: int = 6  # nearest tracks each track is tested against in its query frame
     neighbour_px: float = 3.0  # within this image distance there
     depth_tol: float = 0.1  # largest relative depth difference of two joined tracks there
     min_tracks: int = 50  # smallest group kept
     seed_tracks: int = 200  # tracks in a seed patch
-    max_seeds: int = 30  # seed patches tried
+    max_seeds: int = 30  # most seed patches tried
+    max_failed: int = 6  # stop after this many seeds in a row gave no group
     min_seen: int = 6  # frames a track must be seen in to join a group
-    rounds: int = 3  # fits of a group's motion, each to the tracks the one before explained
-    max_fit: int = 1500  # tracks in the bundle adjustment (the rest are fitted to its poses)
-    max_px: float = 1.0  # a track's largest median reprojection error under the rigid motion
-    min_fit: float = 0.5  # smallest fraction of a group's tracks the rigid motion explains
-    iters: int = 30
+    rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
+    settle: float = 0.02  # ... until the group changes by no more than this fraction of its tracks
+    max_fit: int = 800  # tracks in the bundle adjustment (the rest are fitted to its poses)
+    max_px: float = 0.6  # a track's largest median reprojection error under the rigid motion
+    max_px80: float = 1.5  # ... and 80th percentile of it
+    iters: int = 30  # Levenberg-Marquardt iterations of a group's final fit
+    round_iters: int = 10  # ... and of the fits while it grows
+    dc_weight: float = 1.0  # the depth term's weight in the rigid fit, times the optimiser's lambda_dc
 
 
 def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
@@ -72,15 +78,6 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarr
         keep = (a != b) & (np.abs(np.log(np.maximum(z[a, t], 1e-6) / np.maximum(z[b, t], 1e-6))) <= s.depth_tol)
         pairs.append(np.stack([a[keep], b[keep]], 1))
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
-
-
-def connected_to(seed: np.ndarray, members: np.ndarray, pairs: np.ndarray, N: int) -> np.ndarray:
-    """The tracks of ``members`` (bool ``[N]``) joined to any track of ``seed`` through ``pairs`` of members."""
-    a, b = pairs[:, 0], pairs[:, 1]
-    ok = members[a] & members[b]
-    _, lab = connected_components(coo_matrix((np.ones(ok.sum()), (a[ok], b[ok])), shape=(N, N)), directed=False)
-    hit = np.unique(lab[seed[members[seed]]])
-    return members & np.isin(lab, hit)
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -111,10 +108,13 @@ def initial_motion(X: np.ndarray, vis: np.ndarray, ref: int, min_shared: int = 6
     return out
 
 
-def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=torch.float64, device="cpu"):
+def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=torch.float64, device="cpu",
+               iters: int | None = None):
     """Rigid motion of a group: ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` depth targets (metres), ``X [n,T,3]``
     its stage-3 world positions (the start). Returns (the solved frames [F] int, their camera-from-object (R, t)
-    tensors ``[F,3,3]``, ``[F,3]``; the object frame is the camera frame in the first of them), or None."""
+    tensors ``[F,3,3]``, ``[F,3]``; the object frame is the camera frame in the first of them), or None.
+    ``iters``: Levenberg-Marquardt iterations (None: ``s.iters``)."""
+    cfg = replace(cfg, lambda_dc=cfg.lambda_dc * s.dc_weight)
     ref = int(np.argmax(vis.sum(0)))
     O = initial_motion(X, vis, ref)  # object-to-world; the object frame is the world frame at ref
     frames = np.flatnonzero(np.isfinite(O[:, 0, 0]))
@@ -131,14 +131,15 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
                                      cfg, dtype, device)
     R, t = lie.c2w_to_w2c(invert_pose(cfo), dtype, device)  # camera-from-object as (R, t)
-    sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=s.iters)
+    sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=iters or s.iters)
     return order, sol.R, sol.t
 
 
 def place_on_motion(uv, vis, target, motion, poses, K, cfg, dtype=torch.float64, device="cpu"):
     """Tracks ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` fitted as points of a rigid ``motion``
     (:func:`fit_motion`). Returns (world positions ``[n,T,3]``, NaN in the frames the motion is not solved in;
-    median reprojection error ``[n]`` px over the solved frames a track is seen in, inf where fewer than 3)."""
+    median and 80th percentile of the reprojection error ``[n,2]`` px over the solved frames a track is seen in, inf
+    where fewer than 3)."""
     order, R, t = motion
     n, T = vis.shape
     pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
@@ -149,9 +150,10 @@ def place_on_motion(uv, vis, target, motion, poses, K, cfg, dtype=torch.float64,
     srt = np.lexsort((err, pt))
     counts = np.bincount(pt, minlength=n)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    med = np.full(n, np.inf)
+    med = np.full((n, 2), np.inf)
     has = counts >= 3
-    med[has] = err[srt][starts[has] + (counts[has] - 1) // 2]
+    for j, q in enumerate((0.5, 0.8)):
+        med[has, j] = err[srt][starts[has] + np.floor(q * (counts[has] - 1)).astype(np.int64)]
     obj_to_world = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
     out = np.full((n, T, 3), np.nan)
     out[:, order] = transform(obj_to_world[None], P.detach().cpu().numpy().astype(np.float64)[:, None, :])
@@ -162,11 +164,10 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                  K: np.ndarray, qf: np.ndarray, cfg, s: RigidSettings, log=None, dtype=torch.float64,
                  device="cpu") -> tuple[np.ndarray, np.ndarray, dict]:
     """World positions ``[N,T,3]`` of dynamic tracks with every rigidly moving group placed by its rigid motion
-    (stage 3's ``xyz [N,T,3]`` elsewhere). Groups are found one at a time: a seed patch (the ``seed_tracks``
-    tracks nearest a remaining track in its query frame ``qf``, at depths within ``depth_tol``) gives a motion,
-    the remaining tracks it explains (median reprojection error <= ``max_px`` over 3 or more frames) refit it,
-    and the tracks the refit explains form the group; a seed whose motion explains fewer than ``min_tracks``
-    is dropped. Returns the positions, each track's group ``[N]`` (-1: none) and counts."""
+    (stage 3's ``xyz [N,T,3]`` elsewhere; the module docstring says how groups are found). ``uv [N,T,2]``,
+    ``vis [N,T]``, ``target [N,T]`` stage 3's depth targets (metres), ``qf [N]`` query frames, ``cfg`` the
+    optimiser's config (the fit's weights and kernels). Returns the positions, each track's group ``[N]`` (-1:
+    none) and counts."""
     out = xyz.copy()
     N, T = vis.shape
     w2c = invert_pose(poses)
@@ -175,7 +176,42 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     seen = vis.sum(1)
     left = seen >= s.min_seen
     pairs = neighbour_pairs(uv, vis, z, qf, s)
+    adj = coo_matrix((np.ones(2 * len(pairs)), (np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]])),
+                     shape=(N, N)).tocsr()
+
+    def explained(idx, motion):
+        """(bool [len(idx)]: the tracks ``idx`` the motion explains, their positions on it)"""
+        pos, med = place_on_motion(uv[idx], vis[idx], target[idx], motion, poses, K, cfg, dtype, device)
+        zr = np.einsum("tj,ntj->nt", w2c[:, 2, :3], np.nan_to_num(pos)) + w2c[None, :, 2, 3]
+        dz = np.where(vis[idx] & np.isfinite(pos[..., 0]),
+                      np.abs(np.log(np.maximum(zr, 1e-6) / np.maximum(target[idx], 1e-6))), np.nan)
+        with warnings.catch_warnings():  # tracks seen in no solved frame: all-NaN rows, not explained
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (np.nanmedian(dz, axis=1) <= s.depth_tol), pos
+
+    def grow(seed, motion):
+        """The remaining tracks the motion explains that are joined to ``seed`` through explained neighbours
+        (region growing over ``pairs``: each track is tested once), and their positions ``[n,T,3]``."""
+        tested = np.zeros(N, bool)
+        inl = np.zeros(N, bool)
+        pos_all = {}
+        front = np.asarray(seed)
+        while len(front):
+            front = front[left[front] & ~tested[front]]
+            if not len(front):
+                break
+            tested[front] = True
+            ok, pos = explained(front, motion)
+            inl[front[ok]] = True
+            pos_all.update(zip(front[ok].tolist(), pos[ok], strict=True))
+            nxt = adj[front[ok]].indices
+            front = np.unique(nxt)
+        members = np.flatnonzero(inl)
+        pos = np.stack([pos_all[i] for i in members]) if len(members) else np.zeros((0, T, 3))
+        return members, pos
+
     seeds = left.copy()
+    failed = 0
     groups = np.full(N, -1)
     info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
     for _ in range(s.max_seeds):
@@ -192,29 +228,27 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         members = near
         for _round in range(s.rounds):
             motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
-                                dtype, device)
+                                dtype, device, s.round_iters)
             if motion is None:
                 break
-            idx = np.flatnonzero(left)
-            pos, med = place_on_motion(uv[idx], vis[idx], target[idx], motion, poses, K, cfg, dtype, device)
-            zr = np.einsum("tj,ntj->nt", w2c[:, 2, :3], np.nan_to_num(pos)) + w2c[None, :, 2, 3]
-            dz = np.where(vis[idx] & np.isfinite(pos[..., 0]), np.abs(np.log(np.maximum(zr, 1e-6)
-                                                                             / np.maximum(target[idx], 1e-6))), np.nan)
-            with warnings.catch_warnings():  # tracks seen in no solved frame: all-NaN rows, not good
-                warnings.simplefilter("ignore", RuntimeWarning)
-                good = (med <= s.max_px) & (np.nanmedian(dz, axis=1) <= s.depth_tol)
-            inl = np.zeros(N, bool)
-            inl[idx[good]] = True
-            members = np.flatnonzero(connected_to(near, inl, pairs, N))
-            good = np.isin(idx, members)
-            if len(members) < s.min_tracks:
+            grown, pos = grow(near, motion)
+            settled = len(np.setxor1d(grown, members)) <= s.settle * len(members)
+            members = grown
+            if len(members) < s.min_tracks or settled:
                 break
+        if motion is not None and len(members) >= s.min_tracks:  # the group's motion, fitted to it in full
+            motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
+                                dtype, device)
+            members, pos = (members, None) if motion is None else grow(members, motion)
+        failed = failed + 1 if motion is None or len(members) < s.min_tracks else 0
+        if failed >= s.max_failed:
+            break
         if motion is None or len(members) < s.min_tracks:
             continue
-        keep = good[:, None] & np.isfinite(pos[..., 0])
-        sub = out[idx]
+        keep = np.isfinite(pos[..., 0])
+        sub = out[members]
         sub[keep] = pos[keep]
-        out[idx] = sub
+        out[members] = sub
         left[members] = False
         groups[members] = info["rigid_groups"]
         info["rigid_groups"] += 1
