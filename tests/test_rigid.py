@@ -66,3 +66,27 @@ def test_initial_motion_chains_the_frames_and_stops_where_too_few_are_shared():
     O = initial_motion(X, vis, 0)
     assert np.isfinite(O[:12]).all() and np.isnan(O[12:]).all()
     np.testing.assert_allclose(transform(O[5][None], X[:, 0]), X[:, 5], atol=1e-9)
+
+
+def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny_scene, tmp_path):
+    import json
+
+    from trackingworld.cli.main import main
+    from trackingworld.io.result import load_result
+
+    inp = tiny_scene / "input"
+    outs = {}
+    for name, extra in (("off", []), ("on", ["--rigid-movers"])):
+        out = outs[name] = tmp_path / name
+        assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
+                     "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet",
+                     *extra]) == 0
+    assert "rigid_movers" in json.loads((outs["on"] / "timings.json").read_text())
+    assert "rigid_movers" not in json.loads((outs["off"] / "timings.json").read_text())
+    a, b = load_result(outs["off"]), load_result(outs["on"])
+    # the labels are decided before; the tests after stage 3 that read the video depth may move a few
+    assert (a.is_dynamic == b.is_dynamic).mean() > 0.99
+    both = a.is_dynamic & b.is_dynamic
+    assert np.isfinite(b.tracks_3d).all() and not np.allclose(a.tracks_3d[both], b.tracks_3d[both])
+    info = json.loads((outs["on"] / "optim.json").read_text())
+    assert info["rigid_groups"] >= 1 and info["rigid_tracks"] >= 50
