@@ -42,7 +42,7 @@ def test_a_rigid_mover_takes_the_scale_of_all_frames():
     target = z * warp * (1 + 0.02 * np.random.default_rng(1).standard_normal(z.shape))
     start = _lift(uv, target, poses, K)
     out, groups, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings())
-    assert info["rigid_groups"] >= 1 and (groups >= 0).mean() > 0.9
+    assert info["rigid_groups"] >= 1 and (groups >= 0).mean() > 0.75
     zo = np.einsum("tj,ntj->nt", invert_pose(poses)[:, 2, :3], out) + invert_pose(poses)[None, :, 2, 3]
     before = np.median(np.abs(np.log(target / z)), axis=0)  # per frame
     after = np.median(np.abs(np.log(zo / z)), axis=0)

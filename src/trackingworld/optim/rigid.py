@@ -45,10 +45,10 @@ class RigidSettings:
     neighbours: int = 6  # nearest tracks each track is tested against in its query frame
     neighbour_px: float = 3.0  # within this image distance there
     depth_tol: float = 0.1  # largest relative depth difference of two joined tracks there
-    min_tracks: int = 50  # smallest group kept
+    min_tracks: int = 200  # smallest group kept
     seed_tracks: int = 200  # tracks in a seed patch
     max_seeds: int = 30  # most seed patches tried
-    max_failed: int = 6  # stop after this many seeds in a row gave no group
+    max_failed: int = 12  # stop after this many seeds in a row gave no group
     min_seen: int = 6  # frames a track must be seen in to join a group
     rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
     settle: float = 0.02  # ... until the group changes by no more than this fraction of its tracks
@@ -56,7 +56,7 @@ class RigidSettings:
     max_px: float = 0.6  # a track's largest median reprojection error under the rigid motion
     max_px80: float = 1.5  # ... and 80th percentile of it
     iters: int = 30  # Levenberg-Marquardt iterations of a group's final fit
-    round_iters: int = 10  # ... and of the fits while it grows
+    round_iters: int = 6  # ... and of the fits while it grows
     dc_weight: float = 1.0  # the depth term's weight in the rigid fit, times the optimiser's lambda_dc
 
 
