@@ -34,7 +34,7 @@ import torch
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import invert_pose, transform
+from trackingworld.geometry import camera_depths, invert_pose, transform
 from trackingworld.optim import lie, stage2
 
 
@@ -75,9 +75,14 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarr
         ok = np.isfinite(d)
         a = np.repeat(q, k).reshape(len(q), k)[ok]
         b = cand[j[ok]]
-        keep = (a != b) & (np.abs(np.log(np.maximum(z[a, t], 1e-6) / np.maximum(z[b, t], 1e-6))) <= s.depth_tol)
+        keep = (a != b) & (_log_ratio(z[a, t], z[b, t]) <= s.depth_tol)
         pairs.append(np.stack([a[keep], b[keep]], 1))
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
+
+
+def _log_ratio(a, b) -> np.ndarray:
+    """``|log(a / b)|`` of depths (metres), each floored at 1 um."""
+    return np.abs(np.log(np.maximum(a, 1e-6) / np.maximum(b, 1e-6)))
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -145,15 +150,8 @@ def place_on_motion(uv, vis, target, motion, poses, K, cfg, dtype=torch.float64,
     pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
     P = stage2.fit_points(R, t, pa)
     _, r_uv, _ = stage2.residuals(R, t, P, pa)
-    err = r_uv.norm(dim=-1).detach().cpu().numpy()
-    pt = pa.pt.cpu().numpy()
-    srt = np.lexsort((err, pt))
-    counts = np.bincount(pt, minlength=n)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    med = np.full((n, 2), np.inf)
-    has = counts >= 3
-    for j, q in enumerate((0.5, 0.8)):
-        med[has, j] = err[srt][starts[has] + np.floor(q * (counts[has] - 1)).astype(np.int64)]
+    q, counts = stage2.point_quantiles(r_uv.norm(dim=-1).detach().cpu().numpy(), pa.pt.cpu().numpy(), n, (0.5, 0.8))
+    med = np.where(counts[:, None] >= 3, q, np.inf)
     obj_to_world = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
     out = np.full((n, T, 3), np.nan)
     out[:, order] = transform(obj_to_world[None], P.detach().cpu().numpy().astype(np.float64)[:, None, :])
@@ -170,8 +168,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     none) and counts."""
     out = xyz.copy()
     N, T = vis.shape
-    w2c = invert_pose(poses)
-    z = np.einsum("tj,ntj->nt", w2c[:, 2, :3], xyz) + w2c[None, :, 2, 3]
+    z = camera_depths(xyz, poses)
     rng = np.random.default_rng(0)
     seen = vis.sum(1)
     left = seen >= s.min_seen
@@ -182,9 +179,8 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     def explained(idx, motion):
         """(bool [len(idx)]: the tracks ``idx`` the motion explains, their positions on it)"""
         pos, med = place_on_motion(uv[idx], vis[idx], target[idx], motion, poses, K, cfg, dtype, device)
-        zr = np.einsum("tj,ntj->nt", w2c[:, 2, :3], np.nan_to_num(pos)) + w2c[None, :, 2, 3]
-        dz = np.where(vis[idx] & np.isfinite(pos[..., 0]),
-                      np.abs(np.log(np.maximum(zr, 1e-6) / np.maximum(target[idx], 1e-6))), np.nan)
+        dz = np.where(vis[idx] & np.isfinite(pos[..., 0]), _log_ratio(camera_depths(np.nan_to_num(pos), poses),
+                                                                      target[idx]), np.nan)
         with warnings.catch_warnings():  # tracks seen in no solved frame: all-NaN rows, not explained
             warnings.simplefilter("ignore", RuntimeWarning)
             return (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (np.nanmedian(dz, axis=1) <= s.depth_tol), pos
@@ -222,7 +218,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         i = int(cand[np.argmax(seen[cand])])  # the longest remaining track
         t = int(qf[i])
         pool = np.flatnonzero(left & vis[:, t])
-        pool = pool[np.abs(np.log(np.maximum(z[pool, t], 1e-6) / max(z[i, t], 1e-6))) <= s.depth_tol]
+        pool = pool[_log_ratio(z[pool, t], z[i, t]) <= s.depth_tol]
         near = pool[np.argsort(np.linalg.norm(uv[pool, t] - uv[i, t], axis=1))[: s.seed_tracks]]
         seeds[near] = False
         members = near
@@ -239,12 +235,14 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         if motion is not None and len(members) >= s.min_tracks:  # the group's motion, fitted to it in full
             motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
                                 dtype, device)
-            members, pos = (members, None) if motion is None else grow(members, motion)
-        failed = failed + 1 if motion is None or len(members) < s.min_tracks else 0
-        if failed >= s.max_failed:
-            break
+            if motion is not None:
+                members, pos = grow(members, motion)
         if motion is None or len(members) < s.min_tracks:
+            failed += 1
+            if failed >= s.max_failed:
+                break
             continue
+        failed = 0
         keep = np.isfinite(pos[..., 0])
         sub = out[members]
         sub[keep] = pos[keep]

@@ -518,18 +518,23 @@ def track_offset_stat(norms: torch.Tensor, p: BAProblem, stat: str = "max") -> n
         out = torch.zeros(p.n_points, dtype=norms.dtype, device=norms.device)
         out.scatter_reduce_(0, p.pt, norms, reduce="amax", include_self=True)
         return out.cpu().numpy()
-    frac = pct / 100
-    pt = p.pt.cpu().numpy()
-    v = norms.cpu().numpy()
+    q, counts = point_quantiles(norms.cpu().numpy(), p.pt.cpu().numpy(), p.n_points, (pct / 100,))
+    return np.where(counts > 0, q[:, 0], 0.0)
+
+
+def point_quantiles(v: np.ndarray, pt: np.ndarray, n: int, fracs) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, quantiles of the observations' values ``v [M]`` (``pt [M]`` the point of each): ``[n, len(fracs)]``,
+    for each fraction the value at rank ``floor(frac * (count - 1))`` of the point's sorted values (NaN for a point
+    without observations), and each point's observation count ``[n]``."""
     order = np.lexsort((v, pt))
-    pt, v = pt[order], v[order]
-    starts = np.searchsorted(pt, np.arange(p.n_points))
-    counts = np.bincount(pt, minlength=p.n_points)
-    idx = starts + np.floor(frac * np.maximum(counts - 1, 0)).astype(np.int64)
-    out = np.zeros(p.n_points)
+    v = v[order]
+    counts = np.bincount(pt, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     has = counts > 0
-    out[has] = v[idx[has]]
-    return out
+    out = np.full((n, len(fracs)), np.nan)
+    for j, frac in enumerate(fracs):
+        out[has, j] = v[starts[has] + np.floor(frac * (counts[has] - 1)).astype(np.int64)]
+    return out, counts
 
 
 def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:

@@ -11,12 +11,12 @@ import numpy as np
 import torch
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import focal_length, transform, unproject
+from trackingworld.geometry import camera_depths, focal_length, transform, unproject
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.rigid import RigidSettings, rigid_movers
-from trackingworld.pipeline.fields import FieldSettings, camera_depths, edge_free_prior, stage3_target
+from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
 

@@ -49,11 +49,6 @@ class FieldSettings:
                    cfg.dc_target_order)
 
 
-def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
-    """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame."""
-    return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
-
-
 def corrected_prior(D, uv, vis, fields) -> np.ndarray:
     """The prior sampled at the tracks, ``D [N,T]`` metres, times each frame's field at the visible observations
     (``fields``: per frame a ``LogField`` or None: that frame unchanged; :func:`static_fields`): the prior's

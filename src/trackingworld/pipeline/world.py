@@ -248,11 +248,12 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
     with tm("stage3"):
-        target = place_dynamic(np.flatnonzero(dynamic), np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz,
-                               poses, K, cfg, dtype, device, log, info, thinned)
+        dyn = np.flatnonzero(dynamic)
+        target = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K, cfg, dtype,
+                               device, log, info, thinned)
     if cfg.rigid_movers and target is not None:
         with tm("rigid_movers"):
-            place_rigid(np.flatnonzero(dynamic), tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info)
+            place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
