@@ -30,7 +30,7 @@ PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask
               "test_stat": "max", "static_outliers": False, "ts_order": 1, "slip_run": 0.0, "vote_short": 1,
               "dc_edge_sigma_px": 0.0, "stage2_reject": False, "vote_colour_sigma": 0.0,
               "vote_once_gap_px": float("inf"), "photo_static_grey": 0.0, "occluded_static_frames": 0,
-              "dynamic_cell": 0, "photo_moving_share": 0.0}
+              "dynamic_cell": 0, "photo_moving_share": 0.0, "rigid_movers": False}
 
 # dense 2D tracks the rows run on (Track2DConfig fields)
 TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"},
@@ -78,6 +78,7 @@ ROWS = {
     "no occlusion test of the dynamic tracks": ("trackingworld", {"occluded_static_frames": 0}, ""),
     "every dynamic track solved in stage 3 (paper)": ("trackingworld", {"dynamic_cell": 0}, ""),
     "no reverse photometric test (--photo-moving 0)": ("trackingworld", {"photo_moving_share": 0.0}, ""),
+    "no rigid-mover placement (--no-rigid-movers)": ("trackingworld", {"rigid_movers": False}, ""),
     f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),

@@ -76,3 +76,20 @@ def test_stage3_cg_on_cuda_reaches_the_cpu_amg_solution():
         sols[dev] = d.cpu()
     assert torch.allclose(sols["cuda"], sols["cpu"], atol=1e-5)
     assert (sols["cuda"] - torch.as_tensor(z[vis])).abs().mean() < (torch.as_tensor(noisy[vis] - z[vis])).abs().mean()
+
+
+def test_rigid_movers_on_cuda_find_the_cpu_groups_and_positions():
+    """The rigid-mover step (stage 2's solver on the run's device, float64 as the pipeline runs it): the same
+    groups and, to a tenth of a millimetre, the same positions as on the CPU."""
+    from test_rigid import T, _lift, _scene
+    from trackingworld.config import OptimConfig
+    from trackingworld.optim.rigid import RigidSettings, rigid_movers
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    target = z * (1 + 0.1 * np.sin(np.arange(T) / T * 2 * np.pi)[None])
+    start = _lift(uv, target, poses, K)
+    res = {dev: rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings(), device=dev)
+           for dev in ("cpu", "cuda")}
+    assert res["cpu"][2]["rigid_groups"] >= 1 and res["cuda"][2] == res["cpu"][2]
+    np.testing.assert_array_equal(res["cuda"][1], res["cpu"][1])
+    np.testing.assert_allclose(res["cuda"][0], res["cpu"][0], atol=1e-4)

@@ -363,7 +363,14 @@ def _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free):
     return sol[:6 * T], sol[6 * T:-1], float(sol[-1])
 
 
-def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
+@pytest.mark.parametrize("pose_solve", ["dense", "pcg"])
+def test_schur_step_with_the_focal_unknown_equals_the_dense_solve(pose_solve, monkeypatch):
+    if pose_solve == "pcg":  # the reduced pose system through the sparse operators, as for large problems
+        monkeypatch.setattr(stage2, "DENSE_POSE_FLOPS", 0)
+    calls = []
+    for name in ("_dense_pose_solve", "_pcg_pose_solve"):
+        f = getattr(stage2, name)
+        monkeypatch.setattr(stage2, name, lambda *a, _f=f, _n=name, **k: calls.append(_n) or _f(*a, **k))
     uv, z, vis, c2w, _ = _scene(T=5, N=40, n_moving=0)
     Kw = K.copy()
     Kw[:2, :2] *= 0.8
@@ -388,6 +395,7 @@ def test_schur_step_with_the_focal_unknown_equals_the_dense_solve():
     h = 1e-6
     num = (float(stage2.loss(R, t, X, p.with_focal_scale(h))) - float(stage2.loss(R, t, X, p.with_focal_scale(-h))))
     assert abs(num / (2 * h) - 2 * float(fb.gf)) < 1e-4 * abs(num / (2 * h))
+    assert set(calls) == {f"_{pose_solve}_pose_solve"}
 
 
 def test_coarse_space_preconditioner_gives_the_same_step_in_fewer_iterations(monkeypatch):
@@ -411,6 +419,7 @@ def test_coarse_space_preconditioner_gives_the_same_step_in_fewer_iterations(mon
     Hcc, Hxx, Hcx, gc, gx, fb = stage2._linearize(R, t, X, p, focal=True)
     sc, sx, sf = _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free)
     its = []
+    monkeypatch.setattr(stage2, "DENSE_POSE_FLOPS", 0)  # this test is about the PCG path
     pcg = stage2.pcg
     monkeypatch.setattr(stage2, "pcg", lambda *a, **k: pcg(*a, **k, callback=lambda it, x: its.append(it)))
     for spacing in (0, 8):

@@ -76,7 +76,7 @@ def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny
 
     inp = tiny_scene / "input"
     outs = {}
-    for name, extra in (("off", []), ("on", ["--rigid-movers"])):
+    for name, extra in (("off", ["--no-rigid-movers"]), ("on", [])):
         out = outs[name] = tmp_path / name
         assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
                      "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet",

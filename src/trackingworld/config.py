@@ -306,7 +306,7 @@ class OptimConfig:
     # motion is bundle-adjusted to their 2D tracks with the cameras held, its one free scale to the depth targets of all
     # its frames, so the prior's warp under a mover averages over the video (optim.rigid; False: off). Twenty-nine
     # synthetic scenes: world 3D accuracy 80.97 -> 82.94, the optimisation about 2.9x as long (docs/lifting.md item 6b)
-    rigid_movers: bool = False
+    rigid_movers: bool = True
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least occluded_static_in_view frames where the point is in view, and at least occluded_static_frames of its

@@ -309,33 +309,59 @@ def coarse_basis(free: torch.Tensor, spacing: int, dtype, device) -> torch.Tenso
     return torch.as_tensor(np.kron(hats, np.eye(6)), dtype=dtype, device=device)
 
 
-def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor,
-                fb: _FocalBlocks | None = None):
-    """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by PCG.
-    Returns (dc [T,6], dx [N,3], dphi float)."""
-    # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
-    # singular, e.g. a point seen along one ray without depth consistency)
-    lam, V = torch.linalg.eigh(_damp(Hxx, mu))
-    L = V * lam.clamp_min(1e-300).rsqrt()[:, None, :]
-    Hxx_inv = L @ L.transpose(1, 2)
-    Hcc_d = _damp(Hcc, mu)
+DENSE_POSE_FLOPS = 5e8  # a reduced pose system formed densely (3N (6T)^2 multiply-adds) up to this size, else PCG
+
+
+def _dense_pose_solve(G, Hcc_d, Hcf, Hff_d, w, rhs, p: BAProblem, free: torch.Tensor, use_f: bool):
+    """The reduced pose system of :func:`_schur_step` formed as a dense matrix and solved by Cholesky: for
+    small problems (a rigid group's few hundred points, a short clip), where one factorisation costs less than
+    PCG's iterations over the sparse operators. Same packing as the PCG (``rhs [T+1,6]``); None when the
+    matrix is not positive definite (the caller falls back to PCG)."""
+    T, N = p.n_frames, p.n_points
+    n = 6 * T + int(use_f)
+    dev, dt = G.device, G.dtype
+    i6 = torch.arange(6, device=dev)
+    j3 = torch.arange(3, device=dev)
+    rows = (3 * p.pt[:, None, None] + j3[None, None, :]).expand_as(G)
+    cols = (6 * p.fr[:, None, None] + i6[None, :, None]).expand_as(G)
+    Bd = torch.zeros(3 * N, n, dtype=dt, device=dev)
+    Bd.index_put_((rows.reshape(-1), cols.reshape(-1)), G.reshape(-1), accumulate=True)
+    if use_f:
+        Bd[:, 6 * T] = w
+    A = -(Bd.T @ Bd)
+    ar = torch.arange(T, device=dev)
+    blocks = torch.zeros(T, 6, T, 6, dtype=dt, device=dev)
+    blocks[ar, :, ar, :] = Hcc_d
+    A[: 6 * T, : 6 * T] += blocks.reshape(6 * T, 6 * T)
+    if use_f:
+        A[: 6 * T, 6 * T] += Hcf.reshape(-1)
+        A[6 * T, : 6 * T] += Hcf.reshape(-1)
+        A[6 * T, 6 * T] += Hff_d
+    fixed = torch.cat([(~free).repeat_interleave(6), torch.zeros(n - 6 * T, dtype=torch.bool, device=dev)])
+    A[fixed] = 0
+    A[:, fixed] = 0
+    A[fixed, fixed] = 1
+    b = rhs.reshape(-1)[:n] if use_f else rhs[:T].reshape(-1)
+    Lc, bad = torch.linalg.cholesky_ex(0.5 * (A + A.T))
+    if int(bad):
+        return None
+    x = torch.cholesky_solve(b[:, None], Lc)[:, 0]
+    out = torch.zeros_like(rhs)
+    out.view(-1)[:n] = x
+    return out
+
+
+def _pcg_pose_solve(G, Hcc, Hcc_d, Hxx_inv, fb: _FocalBlocks, Hff_d, w, rhs, p: BAProblem, free: torch.Tensor,
+                    use_f: bool) -> torch.Tensor:
+    """The reduced pose system of :func:`_schur_step` solved by PCG over sparse operators (linear in the
+    observations): with G = Hcx L per observation the system is Hcc - B^T B (B from G). Same packing as
+    :func:`_dense_pose_solve`."""
     T, N = p.n_frames, p.n_points
     fmask = free[:, None].to(Hcc.dtype)
-    if fb is None:  # no focal unknown: zero couplings keep one code path
-        fb = _FocalBlocks(torch.zeros((), dtype=Hcc.dtype, device=Hcc.device), torch.zeros_like(Hcc[0, 0, 0]),
-                          torch.zeros_like(gc), torch.zeros_like(gx))
-        use_f = False
-    else:
-        use_f = True
-    Hff_d = fb.Hff * (1 + mu) + 1e-12
-    # with G = Hcx L per observation the reduced pose system is Hcc - B^T B (B from G)
-    G = Hcx @ L[p.pt]  # [M,6,3]
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
         B, BT = _point_pose_operator(G, p.pt, p.fr, N, T)
-    w = (L.transpose(1, 2) @ fb.Hxf[..., None])[..., 0].reshape(-1)  # L^T Hxf, the focal column of B
 
-    # the unknown is packed as [T+1, 6]: rows 0..T-1 the poses, row T column 0 phi (the rest unused)
     def unpack(v):
         return v[:T] * fmask, v[T, 0] if use_f else torch.zeros_like(v[T, 0])
 
@@ -381,13 +407,45 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
         out[T, 0] = r[T, 0] / s_ff
         return out
 
+    return pcg(matvec, rhs, precond, iters=max(60, 6 * T))
+
+
+def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor,
+                fb: _FocalBlocks | None = None):
+    """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by a dense Cholesky
+    solve where the reduced system is small (:data:`DENSE_POSE_FLOPS`), else by PCG.
+    Returns (dc [T,6], dx [N,3], dphi float)."""
+    # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
+    # singular, e.g. a point seen along one ray without depth consistency)
+    lam, V = torch.linalg.eigh(_damp(Hxx, mu))
+    L = V * lam.clamp_min(1e-300).rsqrt()[:, None, :]
+    Hxx_inv = L @ L.transpose(1, 2)
+    Hcc_d = _damp(Hcc, mu)
+    T, N = p.n_frames, p.n_points
+    fmask = free[:, None].to(Hcc.dtype)
+    if fb is None:  # no focal unknown: zero couplings keep one code path
+        fb = _FocalBlocks(torch.zeros((), dtype=Hcc.dtype, device=Hcc.device), torch.zeros_like(Hcc[0, 0, 0]),
+                          torch.zeros_like(gc), torch.zeros_like(gx))
+        use_f = False
+    else:
+        use_f = True
+    Hff_d = fb.Hff * (1 + mu) + 1e-12
+    # with G = Hcx L per observation the reduced pose system is Hcc - B^T B (B from G)
+    G = Hcx @ L[p.pt]  # [M,6,3]
+    w = (L.transpose(1, 2) @ fb.Hxf[..., None])[..., 0].reshape(-1)  # L^T Hxf, the focal column of B
     y = (Hxx_inv @ gx[..., None])[..., 0]
+    # the unknown is packed as [T+1, 6]: rows 0..T-1 the poses, row T column 0 phi (the rest unused)
     rhs = torch.zeros(T + 1, 6, dtype=gc.dtype, device=gc.device)
     rhs[:T] = -(gc - torch.zeros_like(gc).index_add_(0, p.fr, (Hcx @ y[p.pt][..., None])[..., 0])) * fmask
     if use_f:
         rhs[T, 0] = -(fb.gf - (fb.Hxf * y).sum())
-    sol = pcg(matvec, rhs, precond, iters=max(60, 6 * T))
-    dc, df = unpack(sol)
+    sol = None
+    if 3 * N * (6 * T) ** 2 <= DENSE_POSE_FLOPS:
+        sol = _dense_pose_solve(G, Hcc_d, fb.Hcf, Hff_d, w, rhs, p, free, use_f)
+    if sol is None:
+        sol = _pcg_pose_solve(G, Hcc, Hcc_d, Hxx_inv, fb, Hff_d, w, rhs, p, free, use_f)
+    dc = sol[:T] * fmask
+    df = sol[T, 0] if use_f else torch.zeros_like(sol[T, 0])
     back = torch.zeros_like(gx).index_add_(0, p.pt, (Hcx.transpose(1, 2) @ dc[p.fr][..., None])[..., 0])
     dx = -(Hxx_inv @ (gx + back + fb.Hxf * df)[..., None])[..., 0]
     return dc, dx, float(df)
