@@ -16,7 +16,7 @@ from trackingworld.geometry import intrinsics_matrix, invert_pose, pose_from_rt,
 from trackingworld.optim import lie, stage1, stage2, stage3, static_tests
 from trackingworld.optim.densify import cell_cap_mask, ratio_maps, thinned_observations
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
-from trackingworld.optim.parallel import each_frame
+from trackingworld.optim.parallel import each_frame, torch_threads
 from trackingworld.optim.stage1 import build_clips, chain_clips, clip_frames, initial_poses, solve_clips_lm
 from trackingworld.pipeline import fields as prior_fields
 from trackingworld.pipeline import world
@@ -250,6 +250,21 @@ def test_video_depth_maps_on_threads_are_the_maps_of_one_thread():
             raise RuntimeError("frame 2")
     with pytest.raises(RuntimeError, match="frame 2"):
         each_frame(fails, range(T), threads=2)
+
+
+def test_torch_threads_caps_and_restores_the_thread_count():
+    old = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with torch_threads(1):
+            assert torch.get_num_threads() == 1
+        with torch_threads(4):  # a cap, never more threads than there were
+            assert torch.get_num_threads() == 2
+        with pytest.raises(ValueError), torch_threads(1):
+            raise ValueError
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(old)
 
 
 def test_cell_cap_keeps_the_freshest_tracks_of_every_visited_cell():

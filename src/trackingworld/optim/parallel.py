@@ -8,8 +8,11 @@ sequential."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+
+import torch
 
 MAX_THREADS = 8
 
@@ -32,3 +35,15 @@ def each_frame(work: Callable[[int], None], frames: Iterable[int], threads: int 
     with ThreadPoolExecutor(n) as pool:
         for _ in pool.map(work, frames):
             pass
+
+
+@contextmanager
+def torch_threads(limit: int) -> Iterator[None]:
+    """torch's intra-op threads at most ``limit`` inside the block (restored after it). For work made of many
+    small tensor operations, where more threads cost more in handing out the work than they save."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(max(1, min(old, limit)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)

@@ -15,6 +15,7 @@ from trackingworld.geometry import camera_depths, focal_length, transform, unpro
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
+from trackingworld.optim.parallel import torch_threads
 from trackingworld.optim.rigid import RigidSettings, rigid_movers
 from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
@@ -64,13 +65,19 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     return target
 
 
+# torch threads of the rigid step on a CPU: its problems are small (a few hundred points, 6 unknowns per frame), and
+# on a 16-core machine (H200 host) the step took 22.4 s on 16 threads and 15.9 s on 4 (the demo scene, stop 56)
+RIGID_THREADS = 4
+
+
 def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict) -> None:
     """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target)."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
-    xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
-                                    poses.astype(np.float64), K.astype(np.float64), queries[dyn, 0].astype(np.int64),
-                                    cfg, RigidSettings(), note, dtype, device)
+    with torch_threads(RIGID_THREADS):
+        xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
+                                        poses.astype(np.float64), K.astype(np.float64),
+                                        queries[dyn, 0].astype(np.int64), cfg, RigidSettings(), note, dtype, device)
     info.update(counts)
 
 
