@@ -321,6 +321,9 @@ def test_ablation_switches_run(tiny_scene, tmp_path):
                      "--masks", str(inp / "masks"), "--max-frames", "6", "--quiet", *extra]) == 0
         cfg = json.loads((out / "config.json").read_text())["optim"]
         assert cfg["solver"] == "adam" if flag == "--solver" else cfg[flag.strip("-").replace("-", "_")]
+        # w/o D.O.T leaves the dynamic tracks unoptimised: the rigid-mover step (on by default) does not run either
+        timed = json.loads((out / "timings.json").read_text())
+        assert ("rigid_movers" in timed) == (flag != "--no-dynamic-opt"), flag
 
 
 def test_video_alone_runs_weight_free(tiny_scene, tmp_path):

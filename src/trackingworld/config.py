@@ -304,8 +304,9 @@ class OptimConfig:
     photo_static_patch: float = 0.0
     # (not in the paper) after stage 3, groups of dynamic tracks that one rigid motion explains are placed by it: the
     # motion is bundle-adjusted to their 2D tracks with the cameras held, its one free scale to the depth targets of all
-    # its frames, so the prior's warp under a mover averages over the video (optim.rigid; False: off). Twenty-nine
-    # synthetic scenes: world 3D accuracy 80.97 -> 82.94, the optimisation about 2.9x as long (docs/lifting.md item 6b)
+    # its frames, so the prior's warp under a mover averages over the video (optim.rigid; False: off, the paper).
+    # Twenty-nine synthetic scenes: world 3D accuracy 80.97 -> 82.94, the optimisation 8.1 -> 18.0 s per scene
+    # (docs/lifting.md item 6b; the default since stop 56)
     rigid_movers: bool = True
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
@@ -345,7 +346,7 @@ class OptimConfig:
     no_inliers: bool = False
     no_offsets: bool = False
     no_depth_consistency: bool = False
-    no_dynamic_opt: bool = False
+    no_dynamic_opt: bool = False  # "w/o D.O.T": no stage 3 and no rigid-mover step (the raw prior lifted)
     verbose: bool = True
 
 

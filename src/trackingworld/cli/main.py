@@ -398,8 +398,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "removed) is within this many grey levels of the query patch on the mean (0: the colour "
                         "alone)")
     g.add_argument("--rigid-movers", action=argparse.BooleanOptionalAction, default=d.rigid_movers,
-                   help="after stage 3, place each group of dynamic tracks that one rigid motion explains by that "
-                        "motion, fitted to their 2D tracks and, for its scale, to the depth targets of all frames")
+                   help="(not in the paper; on by default) after stage 3, place each group of dynamic tracks that "
+                        "one rigid motion explains by that motion, fitted to their 2D tracks and, for its scale, to "
+                        "the depth targets of all frames; --no-rigid-movers: stage 3's positions, as the paper")
     g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
                    help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "

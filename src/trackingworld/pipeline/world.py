@@ -138,13 +138,19 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
 
     with tm("stage2"):
         cfg_ba = replace(cfg, lambda_dc=cfg.lambda_dc * cfg.ba_dc_weight)  # the bundle adjustment's depth weight
-        p = stage2.BAProblem.from_tracks(uv[s2], D[s2], obs2, K, cfg_ba, dtype, device)
         w_pt = None  # each point's factor on the depth term (OptimConfig.ba_dc_parallax_rad)
         if cfg.ba_dc_parallax_rad > 0 and len(s2):
             w_pt = torch.as_tensor(stage2.parallax_weights(uv[s2], D[s2], obs2, qf[s2], poses, K,
                                                            cfg.ba_dc_parallax_rad), dtype=dtype, device=device)
-            p = replace(p, dc_weight=w_pt[p.pt])
             info["stage2_dc_weight_median"] = float(w_pt.median())
+
+        def ba_problem(obs):
+            """Stage 2's problem over the control tracks' observations ``obs [len(s2),T]``, with the current K
+            and each point's depth-term factor."""
+            q = stage2.BAProblem.from_tracks(uv[s2], D[s2], obs, K, cfg_ba, dtype, device)
+            return q if w_pt is None else replace(q, dc_weight=w_pt[q.pt])
+
+        p = ba_problem(obs2)
         R, t = lie.c2w_to_w2c(poses, dtype, device)
         X0 = stage2.init_points(R, t, p)
         loss0 = float(stage2.loss(R, t, X0, p))
@@ -190,9 +196,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             info["stage2"]["focal"] = {"initial_px": f_start, "refined_px": focal_length(K),
                                        "rounds_px": history, "settled": bool(settled)}
         if not np.array_equal(obs2, vis[s2]):  # capped: the moving-background test on every observation
-            full = stage2.BAProblem.from_tracks(uv[s2], D[s2], vis[s2], K, cfg_ba, dtype, device)
-            if w_pt is not None:
-                full = replace(full, dc_weight=w_pt[full.pt])
+            full = ba_problem(vis[s2])
             moving_s2 = moving_tracks(R, t, X, replace(full, K=p.K, kernel_focal=p.kernel_focal), cfg)
         poses = lie.w2c_to_c2w(R, t)
         X = X.detach().cpu().numpy()
@@ -251,7 +255,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         dyn = np.flatnonzero(dynamic)
         target = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K, cfg, dtype,
                                device, log, info, thinned)
-    if cfg.rigid_movers and target is not None:
+    if cfg.rigid_movers and not cfg.no_dynamic_opt and target is not None:  # w/o D.O.T: no dynamic optimisation at all
         with tm("rigid_movers"):
             place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info)
 
