@@ -310,6 +310,7 @@ def coarse_basis(free: torch.Tensor, spacing: int, dtype, device) -> torch.Tenso
 
 
 DENSE_POSE_FLOPS = 5e8  # a reduced pose system formed densely (3N (6T)^2 multiply-adds) up to this size, else PCG
+DENSE_POSE_ENTRIES = 1e7  # ... and its point-pose coupling (3N x 6T numbers) up to this many (80 MB in float64)
 
 
 def _dense_pose_solve(G, Hcc_d, Hcf, Hff_d, w, rhs, p: BAProblem, free: torch.Tensor, use_f: bool):
@@ -440,7 +441,7 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     if use_f:
         rhs[T, 0] = -(fb.gf - (fb.Hxf * y).sum())
     sol = None
-    if 3 * N * (6 * T) ** 2 <= DENSE_POSE_FLOPS:
+    if 3 * N * (6 * T) ** 2 <= DENSE_POSE_FLOPS and 3 * N * 6 * T <= DENSE_POSE_ENTRIES:
         sol = _dense_pose_solve(G, Hcc_d, fb.Hcf, Hff_d, w, rhs, p, free, use_f)
     if sol is None:
         sol = _pcg_pose_solve(G, Hcc, Hcc_d, Hxx_inv, fb, Hff_d, w, rhs, p, free, use_f)
