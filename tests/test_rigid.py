@@ -90,3 +90,19 @@ def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny
     assert np.isfinite(b.tracks_3d).all() and not np.allclose(a.tracks_3d[both], b.tracks_3d[both])
     info = json.loads((outs["on"] / "optim.json").read_text())
     assert info["rigid_groups"] >= 1 and info["rigid_tracks"] >= 50
+
+
+def test_the_median_scale_keeps_the_2d_tracks_and_meets_the_targets():
+    from trackingworld.geometry import camera_depths, project
+    from trackingworld.optim.rigid import _to_median_scale
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    target = 1.07 * z * (1 + 0.01 * np.random.default_rng(2).standard_normal(z.shape))
+    pos = X.copy()
+    pos[:5, 3] = np.nan  # frames the motion does not solve stay unsolved
+    out = _to_median_scale(pos, vis, target, poses)
+    assert np.isnan(out[:5, 3]).all() and np.isfinite(out[5:]).all()
+    ratio = target / camera_depths(np.nan_to_num(out), poses)
+    assert abs(np.median(ratio[np.isfinite(out[..., 0])]) - 1) < 1e-9
+    uv_out, _ = project(transform(invert_pose(poses)[None], out[5:]), K)
+    np.testing.assert_allclose(uv_out, uv[5:], atol=1e-6)
