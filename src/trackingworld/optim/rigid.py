@@ -271,5 +271,6 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         info["rigid_groups"] += 1
         info["rigid_tracks"] += int(len(members))
         if log:
-            log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames")
+            log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames "
+                f"(seed {info['rigid_seeds']} of at most {s.max_seeds})")
     return out, groups, info
