@@ -4,7 +4,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import intrinsics_matrix, invert_pose, look_at, transform
+from trackingworld.geometry import camera_depths, intrinsics_matrix, invert_pose, look_at, transform
 from trackingworld.optim.rigid import RigidSettings, initial_motion, rigid_movers
 
 T, W, H = 16, 320, 240
@@ -43,7 +43,7 @@ def test_a_rigid_mover_takes_the_scale_of_all_frames():
     start = _lift(uv, target, poses, K)
     out, groups, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings())
     assert info["rigid_groups"] >= 1 and (groups >= 0).mean() > 0.75
-    zo = np.einsum("tj,ntj->nt", invert_pose(poses)[:, 2, :3], out) + invert_pose(poses)[None, :, 2, 3]
+    zo = camera_depths(out, poses)
     before = np.median(np.abs(np.log(target / z)), axis=0)  # per frame
     after = np.median(np.abs(np.log(zo / z)), axis=0)
     assert before.max() > 0.08 and after.max() < 0.03
@@ -93,7 +93,7 @@ def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny
 
 
 def test_the_median_scale_keeps_the_2d_tracks_and_meets_the_targets():
-    from trackingworld.geometry import camera_depths, project
+    from trackingworld.geometry import project
     from trackingworld.optim.rigid import _to_median_scale
 
     uv, vis, X, z, poses, K, qf = _scene(rigid=True)

@@ -85,10 +85,10 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return out
 
 
-
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame of the camera-to-world ``poses_c2w [T,4,4]``."""
     return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
+
 
 def pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Build ``[...,4,4]`` poses from rotations ``[...,3,3]`` and translations ``[...,3]``."""
