@@ -150,6 +150,23 @@ def test_stage2_lm_beats_a_short_adam_run_on_the_same_loss():
     assert lm_cost <= float(stage2.loss(ad.R, ad.t, ad.X, p))
 
 
+def test_point_medians_and_quantiles_match_numpy_per_point():
+    rng = np.random.default_rng(3)
+    counts = np.array([0, 1, 2, 5, 6, 0, 9])  # empty, odd and even counts
+    pt = rng.permutation(np.repeat(np.arange(len(counts)), counts))
+    v = rng.normal(size=len(pt))
+    med = stage2.point_medians(v, pt, len(counts))
+    q, c = stage2.point_quantiles(v, pt, len(counts), (0.5, 0.8))
+    np.testing.assert_array_equal(c, counts)
+    for i, n in enumerate(counts):
+        if n == 0:
+            assert np.isnan(med[i]) and np.isnan(q[i]).all()
+            continue
+        vals = np.sort(v[pt == i])
+        assert med[i] == np.median(vals)
+        assert q[i, 0] == vals[(n - 1) // 2] and q[i, 1] == vals[int(np.floor(0.8 * (n - 1)))]
+
+
 def test_stage3_solvers_agree_and_lower_the_objective():
     rng = np.random.default_rng(1)
     T, N = 6, 40

@@ -26,7 +26,6 @@ poses camera-to-world ``[T,4,4]`` (OpenCV axes).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -157,22 +156,33 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     return order, sol.R, sol.t
 
 
-def place_on_motion(uv, vis, target, motion, poses, K, cfg, dtype=torch.float64, device="cpu"):
+def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu"):
     """Tracks ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` fitted as points of a rigid ``motion``
-    (:func:`fit_motion`). Returns (world positions ``[n,T,3]``, NaN in the frames the motion is not solved in;
-    median and 80th percentile of the reprojection error ``[n,2]`` px over the solved frames a track is seen in, inf
-    where fewer than 3)."""
+    (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame (:func:`motion_positions` places
+    them); median and 80th percentile of the reprojection error ``[n,2]`` px over the solved frames a track is seen
+    in, inf where fewer than 3; median ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
     order, R, t = motion
-    n, T = vis.shape
-    pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
+    n = len(vis)
+    sub = vis[:, order]
+    pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], sub, K, cfg, dtype, device)
     P = stage2.fit_points(R, t, pa)
-    _, r_uv, _ = stage2.residuals(R, t, P, pa)
-    q, counts = stage2.point_quantiles(r_uv.norm(dim=-1).detach().cpu().numpy(), pa.pt.cpu().numpy(), n, (0.5, 0.8))
+    Y, r_uv, _ = stage2.residuals(R, t, P, pa)
+    pt, fr = np.nonzero(sub)  # the problem's observations, in its order
+    q, counts = stage2.point_quantiles(r_uv.norm(dim=-1).detach().cpu().numpy(), pt, n, (0.5, 0.8))
     med = np.where(counts[:, None] >= 3, q, np.inf)
+    # the camera depth of the point on the motion is the fit's own camera z
+    dz = _log_ratio(Y[:, 2].detach().cpu().numpy().astype(np.float64), target[:, order][pt, fr])
+    return P.detach().cpu().numpy().astype(np.float64), med, stage2.point_medians(dz, pt, n)
+
+
+def motion_positions(P: np.ndarray, motion, poses: np.ndarray, T: int) -> np.ndarray:
+    """World positions ``[n,T,3]`` of points ``P [n,3]`` of the object frame on a rigid ``motion``, NaN in the frames
+    it is not solved in."""
+    order, R, t = motion
     obj_to_world = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
-    out = np.full((n, T, 3), np.nan)
-    out[:, order] = transform(obj_to_world[None], P.detach().cpu().numpy().astype(np.float64)[:, None, :])
-    return out, med
+    out = np.full((len(P), T, 3), np.nan)
+    out[:, order] = transform(obj_to_world[None], P[:, None, :])
+    return out
 
 
 def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.ndarray, poses: np.ndarray,
@@ -194,13 +204,11 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                      shape=(N, N)).tocsr()
 
     def explained(idx, motion):
-        """(bool [len(idx)]: the tracks ``idx`` the motion explains, their positions on it)"""
-        pos, med = place_on_motion(uv[idx], vis[idx], target[idx], motion, poses, K, cfg, dtype, device)
-        dz = np.where(vis[idx] & np.isfinite(pos[..., 0]), _log_ratio(camera_depths(np.nan_to_num(pos), poses),
-                                                                      target[idx]), np.nan)
-        with warnings.catch_warnings():  # tracks seen in no solved frame: all-NaN rows, not explained
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (np.nanmedian(dz, axis=1) <= s.depth_tol), pos
+        """(bool [len(idx)]: the tracks ``idx`` the motion explains; the positions ``[k,T,3]`` of those k on it)"""
+        P, med, dz = place_on_motion(uv[idx], vis[idx], target[idx], motion, K, cfg, dtype, device)
+        with np.errstate(invalid="ignore"):  # NaN: a track seen in no solved frame, not explained
+            ok = (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (dz <= s.depth_tol)
+        return ok, motion_positions(P[ok], motion, poses, T)
 
     def grow(seed, motion):
         """The remaining tracks the motion explains that are joined to ``seed`` through explained neighbours
@@ -216,7 +224,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             tested[front] = True
             ok, pos = explained(front, motion)
             inl[front[ok]] = True
-            pos_all.update(zip(front[ok].tolist(), pos[ok], strict=True))
+            pos_all.update(zip(front[ok].tolist(), pos, strict=True))
             nxt = adj[front[ok]].indices
             front = np.unique(nxt)
         members = np.flatnonzero(inl)

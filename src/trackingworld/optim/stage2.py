@@ -585,15 +585,29 @@ def point_quantiles(v: np.ndarray, pt: np.ndarray, n: int, fracs) -> tuple[np.nd
     """Per point, quantiles of the observations' values ``v [M]`` (``pt [M]`` the point of each): ``[n, len(fracs)]``,
     for each fraction the value at rank ``floor(frac * (count - 1))`` of the point's sorted values (NaN for a point
     without observations), and each point's observation count ``[n]``."""
-    order = np.lexsort((v, pt))
-    v = v[order]
-    counts = np.bincount(pt, minlength=n)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    v, counts, starts = _sorted_by_point(v, pt, n)
     has = counts > 0
     out = np.full((n, len(fracs)), np.nan)
     for j, frac in enumerate(fracs):
         out[has, j] = v[starts[has] + np.floor(frac * (counts[has] - 1)).astype(np.int64)]
     return out, counts
+
+
+def point_medians(v: np.ndarray, pt: np.ndarray, n: int) -> np.ndarray:
+    """Per point, the median of the observations' values ``v [M]`` (``pt [M]`` the point of each), as numpy's (the
+    mean of the two middle values for an even count): ``[n]``, NaN for a point without observations."""
+    v, counts, starts = _sorted_by_point(v, pt, n)
+    has = counts > 0
+    out = np.full(n, np.nan)
+    out[has] = (v[starts[has] + (counts[has] - 1) // 2] + v[starts[has] + counts[has] // 2]) / 2
+    return out
+
+
+def _sorted_by_point(v: np.ndarray, pt: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The values ``v [M]`` sorted by point (``pt [M]``) and by value within each, each point's count ``[n]`` and the
+    index ``[n]`` where its values start."""
+    counts = np.bincount(pt, minlength=n)
+    return v[np.lexsort((v, pt))], counts, np.concatenate([[0], np.cumsum(counts)[:-1]])
 
 
 def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
