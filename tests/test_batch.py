@@ -32,6 +32,21 @@ def videos(tiny_scene, tmp_path):
     return tmp_path
 
 
+@pytest.fixture
+def restore_threads():
+    """The process's thread settings as they were after the test (``--threads`` caps them for the process)."""
+    import cv2
+    import torch
+
+    from trackingworld.optim import parallel
+
+    before = (torch.get_num_threads(), cv2.getNumThreads(), parallel._cap)
+    yield
+    torch.set_num_threads(before[0])
+    cv2.setNumThreads(before[1])
+    parallel._cap = before[2]
+
+
 def _args(root, *inputs, extra=()):
     return ["run", *[str(root / "videos" / i) for i in inputs], "--out", str(root / "out"),
             "--depth", str(root / "depth" / "{name}.npy"), "--masks", str(root / "masks" / "{name}"),
@@ -119,3 +134,34 @@ def test_skip_done_with_one_video(tiny_scene, tmp_path, capsys):
     before = (out / "result.npz").stat().st_mtime_ns
     assert main(args) == 0 and (out / "result.npz").stat().st_mtime_ns == before
     assert "already holds a finished run" in capsys.readouterr().out
+
+
+def test_jobs_run_videos_at_once_in_processes_with_the_same_results(videos, tiny_scene, capsys, restore_threads):
+    shutil.copy(tiny_scene / "input" / "intrinsics.txt", videos / "K.txt")
+    assert main(_args(videos, "a", "b")) == 0  # one at a time, into out/
+    shutil.move(videos / "out", videos / "one_at_a_time")
+    shutil.copytree(videos / "videos" / "b", videos / "videos" / "c")
+    np.save(videos / "depth" / "c.npy", np.zeros(3))  # c's depth is broken: recorded, the others go on
+    shutil.copytree(videos / "masks" / "b", videos / "masks" / "c")
+    assert main(_args(videos, "a", "b", "c", extra=["--jobs", "2", "--threads", "1"])) == 1
+    err = capsys.readouterr().err
+    assert "2 at once, 1 threads each" in err
+    s = json.loads((videos / "out" / "batch.json").read_text())
+    assert [v["input"].rsplit("/", 1)[-1] for v in s["videos"]] == ["a", "b", "c"]  # the inputs' order
+    assert [v["status"] for v in s["videos"]] == ["done", "done", "failed"] and "c.npy" in s["videos"][2]["error"]
+    for name in ("a", "b"):
+        r1, r2 = load_result(videos / "one_at_a_time" / name), load_result(videos / "out" / name)
+        np.testing.assert_allclose(r2.tracks_2d, r1.tracks_2d, atol=1e-3)
+        np.testing.assert_allclose(r2.tracks_3d, r1.tracks_3d, atol=1e-3)
+    rc = main(_args(videos, "a", "b", extra=["--jobs", "0"]))
+    assert rc == 2 and "--jobs 0" in capsys.readouterr().err
+
+
+def test_thread_cap_limits_torch_opencv_and_the_frame_loops(restore_threads):
+    import cv2
+    import torch
+
+    from trackingworld.optim import parallel
+
+    parallel.set_thread_cap(1)
+    assert torch.get_num_threads() == 1 and cv2.getNumThreads() == 1 and parallel.worker_threads() == 1

@@ -82,6 +82,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--skip-done", action="store_true",
                    help="leave out a video whose output folder already holds a finished run (resume a batch)")
+    r.add_argument("--jobs", type=int, default=1, metavar="J",
+                   help="with several inputs: run J videos at once, each in its own process with the CPUs shared out "
+                        "(or --threads each); their progress lines are left out (default 1: one at a time)")
+    r.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="at most N threads in each pool of a run (torch, OpenCV, the frame loops; default: every "
+                        "CPU). Runs that share a machine need N x runs <= cores: more threads than cores make "
+                        "torch's threads wait on each other, many times slower")
     g = r.add_argument_group("priors (default: weight-free, from the video itself)")
     g.add_argument("--depth", help="FILE (.npy/.npz [T,H,W] metres, or folder of 16-bit PNG mm) | MODEL (e.g. "
                    "depth-anything-v2-small, depth-pro, zoedepth, unidepth, hf:ID, or a local model folder) | "
@@ -490,6 +497,7 @@ def cmd_synth(a) -> int:
 
 def cmd_run(a) -> int:
     from trackingworld.config import InputConfig, RunConfig
+    from trackingworld.optim.parallel import set_thread_cap
     from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch, summary
     from trackingworld.pipeline.run import run
 
@@ -501,8 +509,12 @@ def cmd_run(a) -> int:
                            self_calibrate=not a.no_self_calibration),
         track2d=_track_config(a), optim=_optim_config(a),
     )
+    if a.threads is not None:
+        if a.threads < 1:
+            raise InputError(f"--threads {a.threads}: must be 1 or more")
+        set_thread_cap(a.threads)
     if len(a.input) > 1:
-        entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet)
+        entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet, jobs=a.jobs, threads=a.threads)
         n = summary(entries, len(entries))
         print(f"{n['done']} done, {n['skipped']} skipped, {n['failed']} failed of {n['inputs']}: "
               f"{Path(a.out) / SUMMARY_FILE}")

@@ -12,15 +12,33 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
+import cv2
 import torch
 
 MAX_THREADS = 8
+_cap: int | None = None  # set_thread_cap's limit for this process (None: every CPU it may run on)
+
+
+def cpu_count() -> int:
+    """The CPUs this process may run on (its affinity mask where the system has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def worker_threads(limit: int = MAX_THREADS) -> int:
-    """The CPUs this process may run on, at most ``limit``."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(limit, cpus))
+    """The CPUs this process may run on, at most ``limit`` and at most the cap of :func:`set_thread_cap`."""
+    return max(1, min(limit, cpu_count(), _cap or limit))
+
+
+def set_thread_cap(n: int) -> None:
+    """Every pool of this process at most ``n`` threads from now on: torch's intra-op threads, OpenCV's and the frame
+    loops' (:func:`worker_threads`). For several runs sharing a machine: torch's OpenMP threads busy-wait between
+    the many small operations of the rigid step and the fits, and with more threads than cores in all the processes
+    together they wait on each other (two runs of the rigid step at once on 2 cores, 2 threads each: 344 s instead
+    of 8 s; ``docs/speed.md``, stop 58)."""
+    global _cap
+    _cap = max(1, int(n))
+    torch.set_num_threads(_cap)
+    cv2.setNumThreads(_cap)
 
 
 def each_frame(work: Callable[[int], None], frames: Iterable[int], threads: int | None = None) -> None:
