@@ -85,10 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--jobs", type=int, default=1, metavar="J",
                    help="with several inputs: run J videos at once, each in its own process with the CPUs shared out "
                         "(or --threads each); their progress lines are left out (default 1: one at a time)")
-    r.add_argument("--threads", type=int, default=None, metavar="N",
-                   help="at most N threads in each pool of a run (torch, OpenCV, the frame loops; default: every "
-                        "CPU). Runs that share a machine need N x runs <= cores: more threads than cores make "
-                        "torch's threads wait on each other, many times slower")
+    _threads_arg(r)
     g = r.add_argument_group("priors (default: weight-free, from the video itself)")
     g.add_argument("--depth", help="FILE (.npy/.npz [T,H,W] metres, or folder of 16-bit PNG mm) | MODEL (e.g. "
                    "depth-anything-v2-small, depth-pro, zoedepth, unidepth, hf:ID, or a local model folder) | "
@@ -123,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--frame-stride", type=int, default=1)
     k.add_argument("--resize", type=int, default=None)
     _track_args(k)
+    _threads_arg(k)
     k.add_argument("--quiet", action="store_true")
 
     e = sub.add_parser("eval", help="evaluate a result folder against a synthetic scene")
@@ -226,6 +224,24 @@ def _track_config(a):
         flow_median=a.flow_median, flow_refind_patch_diff=a.flow_refind_patch_diff)
 
 
+def _threads_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="at most N threads in each pool of the process (torch, OpenCV, the frame loops; default: "
+                        "every CPU). Runs that share a machine need N x runs <= cores: more threads than cores make "
+                        "torch's threads wait on each other, many times slower")
+
+
+def _apply_threads(a) -> None:
+    """``--threads``: the process's thread cap (optim.parallel.set_thread_cap); InputError below 1."""
+    if a.threads is None:
+        return
+    if a.threads < 1:
+        raise InputError(f"--threads {a.threads}: must be 1 or more")
+    from trackingworld.optim.parallel import set_thread_cap
+
+    set_thread_cap(a.threads)
+
+
 def cmd_track2d(a) -> int:
     import numpy as np
 
@@ -234,6 +250,7 @@ def cmd_track2d(a) -> int:
     from trackingworld.pipeline.inputs import load_inputs
     from trackingworld.pipeline.tracks import check_track2d, track_video
 
+    _apply_threads(a)
     cfg = _track_config(a)
     check_track2d(cfg)  # before the video is read
     inp = load_inputs(InputConfig(input=a.input, max_frames=a.max_frames, frame_stride=a.frame_stride,
@@ -497,7 +514,6 @@ def cmd_synth(a) -> int:
 
 def cmd_run(a) -> int:
     from trackingworld.config import InputConfig, RunConfig
-    from trackingworld.optim.parallel import set_thread_cap
     from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch, summary
     from trackingworld.pipeline.run import run
 
@@ -509,10 +525,7 @@ def cmd_run(a) -> int:
                            self_calibrate=not a.no_self_calibration),
         track2d=_track_config(a), optim=_optim_config(a),
     )
-    if a.threads is not None:
-        if a.threads < 1:
-            raise InputError(f"--threads {a.threads}: must be 1 or more")
-        set_thread_cap(a.threads)
+    _apply_threads(a)
     if len(a.input) > 1:
         entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet, jobs=a.jobs, threads=a.threads)
         n = summary(entries, len(entries))

@@ -3,7 +3,8 @@ and large numpy array operations (which release it too), so two frames on two co
 own slice of the output, so the result does not depend on the number of threads. Threads rather than processes:
 the arrays are shared, not copied. Stage 3's followers and the short tracks' vote, run the same way, measured no
 faster in a whole run (30 frames at 854x480, two runs each beside stop 49's code; ``docs/speed.md``), and stay
-sequential."""
+sequential. :func:`set_thread_cap` caps every pool of the process (``trackingworld run --threads``), for runs that
+share a machine."""
 
 from __future__ import annotations
 
