@@ -153,8 +153,9 @@ def test_jobs_run_videos_at_once_in_processes_with_the_same_results(videos, tiny
         r1, r2 = load_result(videos / "one_at_a_time" / name), load_result(videos / "out" / name)
         np.testing.assert_allclose(r2.tracks_2d, r1.tracks_2d, atol=1e-3)
         np.testing.assert_allclose(r2.tracks_3d, r1.tracks_3d, atol=1e-3)
-    rc = main(_args(videos, "a", "b", extra=["--jobs", "0"]))
-    assert rc == 2 and "--jobs 0" in capsys.readouterr().err
+    for inputs in (("a", "b"), ("a",)):
+        rc = main(_args(videos, *inputs, extra=["--jobs", "0"]))
+        assert rc == 2 and "--jobs 0" in capsys.readouterr().err
     rc = main(["track2d", str(videos / "videos" / "a"), "--out", str(videos / "t.npz"), "--threads", "0"])
     assert rc == 2 and "--threads 0: must be 1 or more" in capsys.readouterr().err
     assert not (videos / "t.npz").exists()

@@ -526,6 +526,8 @@ def cmd_run(a) -> int:
         track2d=_track_config(a), optim=_optim_config(a),
     )
     _apply_threads(a)
+    if a.jobs < 1:
+        raise InputError(f"--jobs {a.jobs}: must be 1 or more")
     if len(a.input) > 1:
         entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet, jobs=a.jobs, threads=a.threads)
         n = summary(entries, len(entries))
