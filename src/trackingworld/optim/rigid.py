@@ -163,11 +163,10 @@ def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device
     in, inf where fewer than 3; median ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
     order, R, t = motion
     n = len(vis)
-    sub = vis[:, order]
-    pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], sub, K, cfg, dtype, device)
+    pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
     P = stage2.fit_points(R, t, pa)
     Y, r_uv, _ = stage2.residuals(R, t, P, pa)
-    pt, fr = np.nonzero(sub)  # the problem's observations, in its order
+    pt, fr = pa.pt.cpu().numpy(), pa.fr.cpu().numpy()  # the problem's observations (frames index ``order``)
     q, counts = stage2.point_quantiles(r_uv.norm(dim=-1).detach().cpu().numpy(), pt, n, (0.5, 0.8))
     med = np.where(counts[:, None] >= 3, q, np.inf)
     # the camera depth of the point on the motion is the fit's own camera z

@@ -133,12 +133,13 @@ def run_batch(cfg: RunConfig, inputs: list[str], out_root: str | Path, skip_done
             print(head[k], file=sys.stderr, flush=True)
             record(k, run_video(cfg, inputs[k], names[k], outs[k], verbose))
         return entries
-    per_job = threads or max(1, cpu_count() // jobs)
-    with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=get_context("spawn"), initializer=set_thread_cap,
+    workers = min(jobs, len(todo))  # no more processes than videos, and the CPUs shared among those
+    per_job = threads or max(1, cpu_count() // workers)
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=set_thread_cap,
                              initargs=(per_job,)) as pool:
         futures = {pool.submit(run_video, cfg, inputs[k], names[k], outs[k], False): k for k in todo}
         for k in todo:
-            print(f"{head[k]} (queued; {jobs} at once, {per_job} threads each)", file=sys.stderr, flush=True)
+            print(f"{head[k]} (queued; {workers} at once, {per_job} threads each)", file=sys.stderr, flush=True)
         try:
             for fut in as_completed(futures):
                 k = futures[fut]
