@@ -106,3 +106,26 @@ def test_the_median_scale_keeps_the_2d_tracks_and_meets_the_targets():
     assert abs(np.median(ratio[np.isfinite(out[..., 0])]) - 1) < 1e-9
     uv_out, _ = project(transform(invert_pose(poses)[None], out[5:]), K)
     np.testing.assert_allclose(uv_out, uv[5:], atol=1e-6)
+
+
+def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch):
+    """Of a group larger than ``max_fit``, the tracks in the motion's bundle adjustment are drawn with a chance in
+    proportion to the frames each is seen in: the long tracks, which tie far-apart frames together, are not left to
+    their share of the tracks."""
+    from trackingworld.optim import rigid, stage2
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    long = np.arange(len(vis)) < 60  # 10% of the tracks, seen in all 16 frames; the others in 2
+    vis = vis.copy()
+    vis[~long] = False
+    starts = np.random.default_rng(2).integers(0, T - 1, (~long).sum())
+    vis[np.flatnonzero(~long)[:, None], starts[:, None] + np.arange(2)] = True
+    drawn = []
+    real = stage2.BAProblem.from_tracks
+    monkeypatch.setattr(stage2.BAProblem, "from_tracks",
+                        staticmethod(lambda uv_, d, v, *a: drawn.append(v.sum(1)) or real(uv_, d, v, *a)))
+    motion = rigid.fit_motion(uv, vis, z, _lift(uv, z, poses, K), poses, K, OptimConfig(),
+                              RigidSettings(max_fit=100), np.random.default_rng(0), iters=1)
+    assert motion is not None
+    share = (drawn[0] == T).mean()  # long tracks among the drawn: 60 * 16 / (60 * 16 + 540 * 2) = 47% of the frames
+    assert 0.35 < share < 0.6

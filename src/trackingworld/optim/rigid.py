@@ -51,7 +51,11 @@ class RigidSettings:
     min_seen: int = 6  # frames a track must be seen in to join a group
     rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
     settle: float = 0.02  # ... until the group changes by no more than this fraction of its tracks
-    max_fit: int = 800  # tracks in the bundle adjustment (the rest are fitted to its poses)
+    # tracks in the bundle adjustment (the rest are fitted to its poses), drawn with a chance in proportion to the
+    # frames each is seen in: the long tracks tie the motion's far-apart frames together. A uniform draw left an
+    # object whose tracks were lost and started again halfway (the 120-frame video of bench_scaling.py) with its
+    # halves' relative motion off: the tracks of one half placed in the other's frames 20 cm off (docs/lifting.md 6b)
+    max_fit: int = 800
     max_px: float = 0.6  # a track's largest median reprojection error under the rigid motion
     max_px80: float = 1.5  # ... and 80th percentile of it
     iters: int = 30  # Levenberg-Marquardt iterations of a group's final fit
@@ -147,8 +151,9 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     fit = np.flatnonzero(vis[:, order].sum(1) >= 2)
     if len(fit) < 3:
         return None
-    if len(fit) > s.max_fit:
-        fit = np.sort(rng.choice(fit, s.max_fit, replace=False))
+    if len(fit) > s.max_fit:  # drawn with a chance in proportion to the frames each is seen in (see RigidSettings)
+        seen = vis[np.ix_(fit, order)].sum(1).astype(np.float64)
+        fit = np.sort(rng.choice(fit, s.max_fit, replace=False, p=seen / seen.sum()))
     p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
                                      cfg, dtype, device)
     R, t = lie.c2w_to_w2c(invert_pose(cfo), dtype, device)  # camera-from-object as (R, t)
