@@ -311,8 +311,8 @@ def coarse_basis(free: torch.Tensor, spacing: int, dtype, device) -> torch.Tenso
 
 # a reduced pose system formed densely (3N (6T)^2 multiply-adds) up to this size, else PCG. Stop 59, 2-core CPU, one
 # reduced solve on random problems: 800 points x 96 / 120 frames (8e8 / 1.2e9) 27 / 37 ms dense against 50 / 61 ms
-# PCG, 800 x 200 (3.5e9) 102 against 79 ms; the 120-frame video's rigid step 29.5 -> 24.2 s with 2e9 instead of 5e8,
-# every position the same within 0.5 um (only long videos' group fits change side)
+# PCG, 800 x 200 (3.5e9) 102 against 79 ms. With 2e9 instead of 5e8 the 120-frame video's rigid step (group fits
+# over 75-150 frames) took 29.5 -> 24.2 s and 854x480's stage 2 3.6 -> 2.2-2.7 s, the same labels, positions within 2 um
 DENSE_POSE_FLOPS = 2e9
 DENSE_POSE_ENTRIES = 1e7  # ... and its point-pose coupling (3N x 6T numbers) up to this many (80 MB in float64)
 
