@@ -148,12 +148,12 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     order = np.concatenate([[ref], frames[frames != ref]])  # stage 2 keeps its frame 0 fixed
     w2c = invert_pose(poses)
     cfo = w2c[order] @ O[order] @ poses[ref]  # camera-from-object, the object frame moved to the camera's at ref
-    fit = np.flatnonzero(vis[:, order].sum(1) >= 2)
+    seen = vis[:, order].sum(1)  # each track's solved frames
+    fit = np.flatnonzero(seen >= 2)
     if len(fit) < 3:
         return None
     if len(fit) > s.max_fit:  # drawn with a chance in proportion to the frames each is seen in (see RigidSettings)
-        seen = vis[np.ix_(fit, order)].sum(1).astype(np.float64)
-        fit = np.sort(rng.choice(fit, s.max_fit, replace=False, p=seen / seen.sum()))
+        fit = np.sort(rng.choice(fit, s.max_fit, replace=False, p=seen[fit] / seen[fit].sum()))
     p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
                                      cfg, dtype, device)
     R, t = lie.c2w_to_w2c(invert_pose(cfo), dtype, device)  # camera-from-object as (R, t)
