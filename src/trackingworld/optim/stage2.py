@@ -46,7 +46,9 @@ from trackingworld.optim.linalg import pcg, sparse_csr
 
 @dataclass
 class BAProblem:
-    """Observations of N points in T frames, flattened: pt, fr [M] long; uv [M,2] px; depth [M] prior metres."""
+    """Observations of N points in T frames, flattened: pt, fr [M] long; uv [M,2] px; depth [M] prior metres.
+    A point has at most one observation per frame (a track's position in a frame): the dense pose solve writes
+    each (point, frame) block once."""
 
     pt: torch.Tensor
     fr: torch.Tensor
@@ -325,19 +327,16 @@ def _dense_pose_solve(G, Hcc_d, Hcf, Hff_d, w, rhs, p: BAProblem, free: torch.Te
     T, N = p.n_frames, p.n_points
     n = 6 * T + int(use_f)
     dev, dt = G.device, G.dtype
-    i6 = torch.arange(6, device=dev)
-    j3 = torch.arange(3, device=dev)
-    rows = (3 * p.pt[:, None, None] + j3[None, None, :]).expand_as(G)
-    cols = (6 * p.fr[:, None, None] + i6[None, :, None]).expand_as(G)
-    Bd = torch.zeros(3 * N, n, dtype=dt, device=dev)
-    Bd.index_put_((rows.reshape(-1), cols.reshape(-1)), G.reshape(-1), accumulate=True)
+    # B [3N, n]: each observation's block G^T at (its point, its frame), written once per (point, frame) pair
+    # (BAProblem); assigning through a [N,3,T,6] view is 3-8x faster than accumulating scattered entries
+    Bd = torch.zeros(N, 3, T, 6, dtype=dt, device=dev)
+    Bd[p.pt, :, p.fr, :] = G.transpose(1, 2)
+    Bd = Bd.view(3 * N, 6 * T)
     if use_f:
-        Bd[:, 6 * T] = w
+        Bd = torch.cat([Bd, w[:, None]], 1)
     A = -(Bd.T @ Bd)
-    ar = torch.arange(T, device=dev)
-    blocks = torch.zeros(T, 6, T, 6, dtype=dt, device=dev)
-    blocks[ar, :, ar, :] = Hcc_d
-    A[: 6 * T, : 6 * T] += blocks.reshape(6 * T, 6 * T)
+    r6 = 6 * torch.arange(T, device=dev)[:, None] + torch.arange(6, device=dev)  # [T,6] each frame's rows
+    A[r6[:, :, None], r6[:, None, :]] += Hcc_d
     if use_f:
         A[: 6 * T, 6 * T] += Hcf.reshape(-1)
         A[6 * T, : 6 * T] += Hcf.reshape(-1)
