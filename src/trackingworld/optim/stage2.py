@@ -328,12 +328,12 @@ def _dense_pose_solve(G, Hcc_d, Hcf, Hff_d, w, rhs, p: BAProblem, free: torch.Te
     n = 6 * T + int(use_f)
     dev, dt = G.device, G.dtype
     # B [3N, n]: each observation's block G^T at (its point, its frame), written once per (point, frame) pair
-    # (BAProblem); assigning through a [N,3,T,6] view is 3-8x faster than accumulating scattered entries
-    Bd = torch.zeros(N, 3, T, 6, dtype=dt, device=dev)
-    Bd[p.pt, :, p.fr, :] = G.transpose(1, 2)
-    Bd = Bd.view(3 * N, 6 * T)
+    # (BAProblem); assigning through a [N,3,T,6] view of the pose columns is 3-8x faster than accumulating
+    # scattered entries
+    Bd = torch.zeros(3 * N, n, dtype=dt, device=dev)
+    Bd[:, : 6 * T].view(N, 3, T, 6)[p.pt, :, p.fr, :] = G.transpose(1, 2)
     if use_f:
-        Bd = torch.cat([Bd, w[:, None]], 1)
+        Bd[:, 6 * T] = w
     A = -(Bd.T @ Bd)
     r6 = 6 * torch.arange(T, device=dev)[:, None] + torch.arange(6, device=dev)  # [T,6] each frame's rows
     A[r6[:, :, None], r6[:, None, :]] += Hcc_d
