@@ -302,6 +302,10 @@ class OptimConfig:
     # ... and a frame matches only where the 5x5 patch at the projection (mean removed) is within this many grey levels
     # of the query pixel's on the mean too (0: the colour alone; optim.photo_static)
     photo_static_patch: float = 0.0
+    # ... and a frame where the track itself is seen more than this many px from the projection matches only where
+    # the projection shows the query colour better than the track's own pixel does: a mover with a smooth texture
+    # shows it at both (0: the projection alone, as before stop 61; optim.photo_static)
+    photo_static_track_px: float = 2.0
     # (not in the paper) after stage 3, groups of dynamic tracks that one rigid motion explains are placed by it: the
     # motion is bundle-adjusted to their 2D tracks with the cameras held, its one free scale to the depth targets of all
     # its frames, so the prior's warp under a mover averages over the video (optim.rigid; False: off, the paper).

@@ -421,6 +421,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="with --photo-static: a frame matches only where the 5x5 patch at the point (its mean "
                         "removed) is within this many grey levels of the query patch on the mean (0: the colour "
                         "alone)")
+    g.add_argument("--photo-static-track", type=float, default=d.photo_static_track_px, metavar="PX",
+                   help="with --photo-static: a frame where the track is seen more than PX from the point's "
+                        "projection matches only where the projection shows the query colour better than the "
+                        "track's own pixel (0: the projection alone)")
     g.add_argument("--rigid-movers", action=argparse.BooleanOptionalAction, default=d.rigid_movers,
                    help="(not in the paper; on by default) after stage 3, place each group of dynamic tracks that "
                         "one rigid motion explains by that motion, fitted to their 2D tracks and, for its scale, to "
@@ -492,6 +496,7 @@ def _optim_config(a):
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,
+        photo_static_track_px=a.photo_static_track,
         rigid_movers=a.rigid_movers,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,

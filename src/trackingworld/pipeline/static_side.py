@@ -283,7 +283,9 @@ def photo_rescue(uv, vis, qf, D, poses, K, frames, masks, cfg: OptimConfig, dyna
                                              cfg.photo_static_grey, cfg.photo_static_frac, cfg.photo_static_frames,
                                              depth_scales(cfg.photo_static_range),
                                              depth if cfg.photo_static_hidden else None, cfg.occluded_static_depth,
-                                             cfg.photo_static_patch)
+                                             cfg.photo_static_patch,
+                                             (uv[cand], vis[cand], cfg.photo_static_track_px)
+                                             if cfg.photo_static_track_px > 0 else None)
     return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "photo_static")
 
 

@@ -304,13 +304,15 @@ def check_optim(o: OptimConfig) -> None:
                          "rounds are 1 or more, the suspects' fraction of the threshold over 0 and at most 1, the "
                          "range 0 px or more (None: estimated), the threshold's MADs 0 (off) or more")
     if (o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1
-            or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1 or not o.photo_static_patch >= 0):
+            or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1 or not o.photo_static_patch >= 0
+            or not o.photo_static_track_px >= 0):
         raise InputError(f"photo_static_grey {o.photo_static_grey} / photo_static_frac {o.photo_static_frac} / "
                          f"photo_static_frames {o.photo_static_frames} / photo_static_near_px "
                          f"{o.photo_static_near_px} / photo_static_range {o.photo_static_range} / "
-                         f"photo_static_patch {o.photo_static_patch}: the colour tolerance is 0 (off) or more, the "
-                         "share from 0 to 1, the frames 1 or more, the distance 0 or more, the depth range from 0 to "
-                         "below 1, the patch tolerance 0 (off) or more")
+                         f"photo_static_patch {o.photo_static_patch} / photo_static_track_px "
+                         f"{o.photo_static_track_px}: the colour tolerance is 0 (off) or more, the share from 0 to 1, "
+                         "the frames 1 or more, the distance 0 or more, the depth range from 0 to below 1, the patch "
+                         "tolerance and the track's distance 0 (off) or more")
     if (o.occluded_static_frames < 0 or not 0 <= o.occluded_static_frac <= 1 or not o.occluded_static_px > 0
             or not 0 < o.occluded_static_depth <= 1 or o.occluded_static_in_view < 1):
         raise InputError(f"occluded_static_frames {o.occluded_static_frames} / occluded_static_frac "
