@@ -197,3 +197,32 @@ def test_a_track_seen_away_from_the_projection_must_show_the_query_colour_worse(
     near = (uv[:, None] + np.float32([1, 0])).repeat(T, 1)
     near[:, 0] = uv
     assert static_hypothesis(uv, z, qf, poses, K, slid, open_, scales=np.ones(1), track=(near, vis, 2.0))[0].all()
+
+
+def test_photo_rescue_leaves_a_tracked_sliding_texture_dynamic_by_default():
+    """The pipeline's step with the setting wired through: tracks that follow a smooth texture sliding 3 px a frame
+    (no masks, so every frame is tested) stay dynamic with the default OptimConfig, and are taken for static points
+    with ``photo_static_track_px=0`` (stop 60's test, the projection alone)."""
+    from scipy.ndimage import gaussian_filter
+
+    T, H, W = 4, 40, 64
+    rng = np.random.default_rng(1)
+    tex = gaussian_filter(rng.standard_normal((H, W)), 3.0, mode="wrap")
+    tex = 128 + 5.0 * tex / np.abs(tex).max()
+    frames = np.stack([np.repeat(np.roll(tex, 3 * t, axis=1)[:, :, None], 3, 2) for t in range(T)])
+    frames = np.rint(frames).astype(np.uint8)
+    K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
+    poses = np.tile(np.eye(4), (T, 1, 1))
+    uvq = np.stack(np.meshgrid(np.arange(12.0, 40.0, 2), np.arange(10.0, 30.0, 2)), -1).reshape(-1, 2)
+    n = len(uvq)
+    uv = (uvq[:, None] + 3.0 * np.arange(T)[None, :, None] * np.array([1.0, 0.0])).astype(np.float32)
+    vis, qf = np.ones((n, T), bool), np.zeros(n, int)
+    D = np.full((n, T), 5.0, np.float32)
+    masks = np.zeros((T, H, W), bool)
+    found = {}
+    for px in (2.0, 0.0):
+        dynamic, xyz = np.ones(n, bool), np.zeros((n, T, 3), np.float32)
+        found[px] = len(photo_rescue(uv, vis, qf, D, poses, K, frames, masks, OptimConfig(photo_static_track_px=px),
+                                     dynamic, xyz, {})[2])
+    assert OptimConfig().photo_static_track_px == 2.0
+    assert found[0.0] > 0.9 * n and found[2.0] < 0.05 * n
