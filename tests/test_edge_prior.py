@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from trackingworld.optim.edge_prior import edge_blur_px, inner_prior
+from trackingworld.optim.edge_prior import EDGE_GRAD_LOG_PER_PX, edge_blur_px, inner_prior
 from trackingworld.pipeline.fields import mover_range_px
 
 
@@ -83,6 +83,18 @@ def test_pixel_noise_like_the_synthetic_priors_does_not_move_the_estimate():
     # and then 1 px read as their combined blur
     noisy = np.stack([cv2.GaussianBlur(f, (0, 0), 1.0) for f in _boxes_video(2.0, noise=0.03)])
     assert edge_blur_px(noisy) == pytest.approx(np.hypot(2.0, 1.0), abs=0.3)
+
+
+def test_a_prior_with_more_edge_pixels_than_opencvs_maps_take_is_read():
+    """cv2.remap takes maps below 32767 px a side: a 640x480 prior of boxes blurred by 2 px has 56,507 pixels
+    above the edge gradient, more than one row of a map holds (the weight-free prior of `dog.mp4` at 854x480 stopped
+    the run there before stop 61). Its blur is read as on the small frames."""
+    small = _boxes_video(2.0, frames=16)
+    frame = np.block([[small[4 * i + j] for j in range(4)] for i in range(4)])  # 480x640
+    tiled = np.stack([frame, frame[::-1]])
+    g = cv2.magnitude(*(cv2.Sobel(np.log(tiled[0]), cv2.CV_32F, dx, 1 - dx, ksize=3, scale=1 / 8) for dx in (1, 0)))
+    assert (g > EDGE_GRAD_LOG_PER_PX).sum() > 32767
+    assert edge_blur_px(tiled) == pytest.approx(2.0, abs=0.3)
 
 
 def test_a_prior_without_depth_edges_gives_no_estimate_and_the_range_falls_back():

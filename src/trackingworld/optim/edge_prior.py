@@ -24,6 +24,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from trackingworld.tracking2d.flow_tracker import sample_image
+
 GRAD_LOG_PER_PX = 0.03  # log depth per px at which a pixel's weight falls to 1/e (a blurred edge is steeper)
 MIN_SUPPORT = 1e-3  # normalised-convolution weight below which a pixel keeps the prior
 
@@ -81,10 +83,9 @@ def edge_widths(log_depth: np.ndarray, reach: int = EDGE_REACH_PX) -> np.ndarray
     gc = g[ys, xs]
     nx, ny = gx[ys, xs] / gc, gy[ys, xs] / gc
 
-    def along(img, d):  # img at d px along each edge pixel's gradient direction (bilinear)
-        mx = (xs + d * nx).astype(np.float32)[None]
-        my = (ys + d * ny).astype(np.float32)[None]
-        return cv2.remap(img, mx, my, cv2.INTER_LINEAR)[0]
+    def along(img, d):  # img at d px along each edge pixel's gradient direction (bilinear; sample_image lays the
+        # points out in rows, as cv2.remap takes maps below 32767 px a side: a real video's prior has more edge pixels)
+        return sample_image(img, np.stack([xs + d * nx, ys + d * ny], 1).astype(np.float32))
 
     centre = (gc >= along(g, 1)) & (gc >= along(g, -1))
     step = along(L, reach) - along(L, -reach)
