@@ -130,14 +130,12 @@ def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, 
     return tested, matched
 
 
-def _own_at(track: tuple[np.ndarray, np.ndarray, float] | None, t: int, keep: np.ndarray | None = None):
+def _own_at(track: tuple[np.ndarray, np.ndarray, float] | None, t: int):
     """The ``own`` argument of :func:`_look` for frame ``t``: ``track`` (uv [n,T,2] px, vis [n,T], px) at that
-    frame, of the rows ``keep`` (indices; None: all); None without a track."""
+    frame; None without a track."""
     if track is None:
         return None
     uv, vis, px = track
-    if keep is not None:
-        uv, vis = uv[keep], vis[keep]
     return uv[:, t], vis[:, t], px
 
 
@@ -231,9 +229,10 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
     pix = np.zeros((len(keep), T, 2), np.float32)
     seen = np.zeros((len(keep), T), bool)
     patch = (query_patches(uv_q[keep], qf[keep], blur), patch_grey) if patch_grey > 0 else None
+    track_kept = None if track is None else (track[0][keep], track[1][keep], track[2])  # the static ones' rows, once
     for t in range(T):
         pix[:, t], _, seen[:, t] = _look(X[keep], colour[keep], blur[t], open_[t], w2c[t], K, grey,
-                                         None if depth is None else depth[t], in_front, patch, _own_at(track, t, keep))
+                                         None if depth is None else depth[t], in_front, patch, _own_at(track_kept, t))
     seen[np.arange(len(keep)), qf[keep]] = True
     pix[np.arange(len(keep)), qf[keep]] = uv_q[keep]
     return static, X, pix, seen
