@@ -3,6 +3,7 @@ images (``optim.photo_static``, ``OptimConfig.photo_static_grey``)."""
 
 import numpy as np
 import pytest
+from scipy.ndimage import gaussian_filter
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import invert_pose, project, transform, unproject
@@ -166,6 +167,12 @@ def test_the_patch_test_tells_a_sliding_texture_from_a_still_one():
         assert static.all() if passes_patch else not static.any()
 
 
+def _smooth_texture(H: int, W: int, amplitude: float, seed: int) -> np.ndarray:
+    """[H,W] grey levels: smoothed noise (sigma 3 px, wrapping) within 128 +- ``amplitude``."""
+    tex = gaussian_filter(np.random.default_rng(seed).standard_normal((H, W)), 3.0, mode="wrap")
+    return 128 + amplitude * tex / np.abs(tex).max()
+
+
 def test_a_track_seen_away_from_the_projection_must_show_the_query_colour_worse():
     """A smooth random texture (within +-5.5 grey levels), a camera that does not move. Where the texture slides
     3 px a frame and the track follows it (a mover the masks missed, tracked right), the projection of the static
@@ -173,12 +180,8 @@ def test_a_track_seen_away_from_the_projection_must_show_the_query_colour_worse(
     point; its own pixel shows the query colour exactly, so with the track given it is not. Where the texture stays
     and the track was dragged 3 px a frame off its point, the projection shows the query colour better than the
     track's pixel: a static point either way. A track within the distance of its projection is judged as before."""
-    from scipy.ndimage import gaussian_filter
-
     T, H, W = 4, 40, 64
-    rng = np.random.default_rng(0)
-    tex = gaussian_filter(rng.standard_normal((H, W)), 3.0, mode="wrap")
-    tex = 128 + 5.5 * tex / np.abs(tex).max()
+    tex = _smooth_texture(H, W, 5.5, seed=0)
     still = np.repeat(np.repeat(tex[None, :, :, None], T, 0), 3, 3).astype(np.float32)
     slid = np.stack([np.roll(still[0], 3 * t, axis=1) for t in range(T)])
     K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
@@ -203,12 +206,8 @@ def test_photo_rescue_leaves_a_tracked_sliding_texture_dynamic_by_default():
     """The pipeline's step with the setting wired through: tracks that follow a smooth texture sliding 3 px a frame
     (no masks, so every frame is tested) stay dynamic with the default OptimConfig, and are taken for static points
     with ``photo_static_track_px=0`` (stop 60's test, the projection alone)."""
-    from scipy.ndimage import gaussian_filter
-
     T, H, W = 4, 40, 64
-    rng = np.random.default_rng(1)
-    tex = gaussian_filter(rng.standard_normal((H, W)), 3.0, mode="wrap")
-    tex = 128 + 5.0 * tex / np.abs(tex).max()
+    tex = _smooth_texture(H, W, 5.0, seed=1)
     frames = np.stack([np.repeat(np.roll(tex, 3 * t, axis=1)[:, :, None], 3, 2) for t in range(T)])
     frames = np.rint(frames).astype(np.uint8)
     K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
