@@ -312,6 +312,10 @@ class OptimConfig:
     # Twenty-nine synthetic scenes: world 3D accuracy 80.97 -> 82.94, the optimisation 8.1 -> 18.0 s per scene
     # (docs/lifting.md item 6b; the default since stop 56)
     rigid_movers: bool = True
+    # (not in the paper) ... and the groups of one object on either side of a gap in its tracks (hidden for a few
+    # frames: no track crosses) joined, each group's tracks placed in the other's frames and the gap's by the joined
+    # motion (optim.rigid_bridge; False: each group in its own frames, as before stop 62)
+    rigid_bridge: bool = True
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least occluded_static_in_view frames where the point is in view, and at least occluded_static_frames of its

@@ -98,6 +98,16 @@ def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     return xyz_world[..., 0] * r[:, 0] + xyz_world[..., 1] * r[:, 1] + xyz_world[..., 2] * r[:, 2] + r[:, 3]
 
 
+def rigid_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The 4x4 rigid transform taking points ``a [n,3]`` to ``b [n,3]`` in the least-squares sense (Kabsch)."""
+    ma, mb = a.mean(0), b.mean(0)
+    U, _, Vt = np.linalg.svd((b - mb).T @ (a - ma))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, mb - R @ ma
+    return out
+
+
 def pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Build ``[...,4,4]`` poses from rotations ``[...,3,3]`` and translations ``[...,3]``."""
     shape = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])

@@ -429,6 +429,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper; on by default) after stage 3, place each group of dynamic tracks that "
                         "one rigid motion explains by that motion, fitted to their 2D tracks and, for its scale, to "
                         "the depth targets of all frames; --no-rigid-movers: stage 3's positions, as the paper")
+    g.add_argument("--rigid-bridge", action=argparse.BooleanOptionalAction, default=d.rigid_bridge,
+                   help="(not in the paper; on by default) with --rigid-movers: join the groups of one object on "
+                        "either side of a gap in its tracks (hidden for a few frames), so that each group's tracks "
+                        "follow the object on the other side too; --no-rigid-bridge: each group in its own frames")
     g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
                    help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
@@ -497,7 +501,7 @@ def _optim_config(a):
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,
         photo_static_track_px=a.photo_static_track,
-        rigid_movers=a.rigid_movers,
+        rigid_movers=a.rigid_movers, rigid_bridge=a.rigid_bridge,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,

@@ -26,15 +26,16 @@ poses camera-to-world ``[T,4,4]`` (OpenCV axes).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import camera_depths, invert_pose, transform
+from trackingworld.geometry import camera_depths, invert_pose, rigid_transform, transform
 from trackingworld.optim import lie, stage2
+from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
 
 
 @dataclass
@@ -46,8 +47,15 @@ class RigidSettings:
     depth_tol: float = 0.1  # largest relative depth difference of two joined tracks there
     min_tracks: int = 200  # smallest group kept
     seed_tracks: int = 200  # tracks in a seed patch
-    max_seeds: int = 30  # most seed patches tried
-    max_failed: int = 12  # stop after this many seeds in a row gave no group
+    # most seed patches tried, and stop after max_failed seeds in a row gave no group (30 and 12 before stop 62, with
+    # no seed ring: on `hard` 0 no group formed on three of its six movers)
+    max_seeds: int = 60
+    max_failed: int = 30
+    # after each seed, the tracks within this many steps of the neighbour graph (:func:`neighbour_pairs`) of its
+    # patch and of its group are no seeds any more (they may still join a group): the longest tracks lie on the
+    # objects already tried, and seeds drawn there again and again used up max_failed before the shorter-lived
+    # movers had one (0: the seed patch alone, as before stop 62)
+    seed_ring: int = 3
     min_seen: int = 6  # frames a track must be seen in to join a group
     rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
     # ... until the group changes by no more than this fraction of its tracks. The rounds' groups keep changing by
@@ -68,6 +76,8 @@ class RigidSettings:
     # the group's scale then set so that its median depth ratio to the targets is 1 (off: the fit's own scale; on,
     # twenty-nine scenes 82.94 -> 83.07, 19 up and 9 down by up to 0.86: docs/lifting.md item 6b, stop 56)
     median_scale: bool = False
+    # groups of one object on either side of a gap no track crosses, joined (optim.rigid_bridge; None: not joined)
+    bridge: BridgeSettings | None = field(default_factory=BridgeSettings)
 
 
 def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
@@ -90,19 +100,16 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarr
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
 
 
+def _ring(adj, idx: np.ndarray, hops: int) -> np.ndarray:
+    """The tracks ``idx`` and those within ``hops`` steps of them in the symmetric adjacency ``adj`` (CSR)."""
+    for _ in range(hops):
+        idx = np.union1d(idx, adj[idx].indices)
+    return idx
+
+
 def _log_ratio(a, b) -> np.ndarray:
     """``|log(a / b)|`` of depths (metres), each floored at 1 um."""
     return np.abs(np.log(np.maximum(a, 1e-6) / np.maximum(b, 1e-6)))
-
-
-def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """4x4 rigid transform taking points ``a [n,3]`` to ``b [n,3]`` (least squares)."""
-    ma, mb = a.mean(0), b.mean(0)
-    U, _, Vt = np.linalg.svd((b - mb).T @ (a - ma))
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, mb - R @ ma
-    return out
 
 
 def _to_median_scale(pos: np.ndarray, vis: np.ndarray, target: np.ndarray, poses: np.ndarray) -> np.ndarray:
@@ -132,7 +139,7 @@ def initial_motion(X: np.ndarray, vis: np.ndarray, ref: int, min_shared: int = 6
             k = vis[:, t] & vis[:, t - step]
             if k.sum() < min_shared:
                 break
-            out[t] = _kabsch(X[k, t - step], X[k, t]) @ out[t - step]
+            out[t] = rigid_transform(X[k, t - step], X[k, t]) @ out[t - step]
             t += step
     return out
 
@@ -183,24 +190,39 @@ def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device
     return P.detach().cpu().numpy().astype(np.float64), med, stage2.point_medians(dz, pt, n)
 
 
+def motion_poses(motion, poses: np.ndarray, T: int) -> np.ndarray:
+    """Object-to-world poses ``[T,4,4]`` of a rigid ``motion`` (:func:`fit_motion`), NaN in the frames it is not
+    solved in."""
+    order, R, t = motion
+    out = np.full((T, 4, 4), np.nan)
+    out[order] = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
+    return out
+
+
 def motion_positions(P: np.ndarray, motion, poses: np.ndarray, T: int) -> np.ndarray:
     """World positions ``[n,T,3]`` of points ``P [n,3]`` of the object frame on a rigid ``motion``, NaN in the frames
     it is not solved in."""
-    order, R, t = motion
-    obj_to_world = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
-    out = np.full((len(P), T, 3), np.nan)
-    out[:, order] = transform(obj_to_world[None], P[:, None, :])
+    return object_positions(P, motion_poses(motion, poses, T))
+
+
+def object_positions(P: np.ndarray, to_world: np.ndarray) -> np.ndarray:
+    """World positions ``[n,T,3]`` of points ``P [n,3]`` of the object frame under object-to-world poses
+    ``to_world [T,4,4]``, NaN where those are."""
+    out = np.full((len(P), len(to_world), 3), np.nan)
+    known = np.flatnonzero(np.isfinite(to_world[:, 0, 0]))
+    out[:, known] = transform(to_world[known][None], P[:, None, :])
     return out
 
 
 def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.ndarray, poses: np.ndarray,
                  K: np.ndarray, qf: np.ndarray, cfg, s: RigidSettings, log=None, dtype=torch.float64,
-                 device="cpu") -> tuple[np.ndarray, np.ndarray, dict]:
+                 device="cpu", size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """World positions ``[N,T,3]`` of dynamic tracks with every rigidly moving group placed by its rigid motion
     (stage 3's ``xyz [N,T,3]`` elsewhere; the module docstring says how groups are found). ``uv [N,T,2]``,
     ``vis [N,T]``, ``target [N,T]`` stage 3's depth targets (metres), ``qf [N]`` query frames, ``cfg`` the
-    optimiser's config (the fit's weights and kernels). Returns the positions, each track's group ``[N]`` (-1:
-    none) and counts."""
+    optimiser's config (the fit's weights and kernels), ``size`` the image's (W, H), which the joining of groups
+    across a gap needs (``s.bridge``; :mod:`trackingworld.optim.rigid_bridge`). Returns the positions, each track's
+    group ``[N]`` (-1: none; the group found first, where groups were joined) and counts."""
     out = xyz.copy()
     N, T = vis.shape
     z = camera_depths(xyz, poses)
@@ -241,6 +263,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     seeds = left.copy()
     failed = 0
     groups = np.full(N, -1)
+    objects: list[RigidObject] = []
     info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
     for _ in range(s.max_seeds):
         cand = np.flatnonzero(seeds & left)
@@ -269,19 +292,16 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                                 dtype, device)
             if motion is not None:
                 members, P = grow(members, motion)
+        if s.seed_ring:
+            seeds[_ring(adj, np.union1d(near, members), s.seed_ring)] = False
         if motion is None or len(members) < s.min_tracks:
             failed += 1
             if failed >= s.max_failed:
                 break
             continue
         failed = 0
-        pos = motion_positions(P, motion, poses, T)
-        if s.median_scale:
-            pos = _to_median_scale(pos, vis[members], target[members], poses)
-        keep = np.isfinite(pos[..., 0])
-        sub = out[members]
-        sub[keep] = pos[keep]
-        out[members] = sub
+        O = motion_poses(motion, poses, T)
+        objects.append(RigidObject(O, members, P, np.repeat(np.isfinite(O[None, :, 0, 0]), len(members), 0)))
         left[members] = False
         groups[members] = info["rigid_groups"]
         info["rigid_groups"] += 1
@@ -289,4 +309,19 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         if log:
             log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames "
                 f"(seed {info['rigid_seeds']} of at most {s.max_seeds})")
+    if s.bridge is not None and size is not None:
+        n = len(objects)
+        objects = bridge(objects, uv, vis, xyz, poses, K, size, s.bridge, log)
+        info["rigid_joined"] = n - len(objects)
+    for o in objects:
+        groups[o.members] = groups[o.members].min()
+        pos = object_positions(o.points, o.motion)
+        if s.median_scale:
+            pos = _to_median_scale(pos, vis[o.members], target[o.members], poses)
+        # a track takes the motion's positions in its own group's frames, and in the frames it is hidden in where
+        # groups were joined: where it is seen there, its own observations placed it (stage 3)
+        keep = np.isfinite(pos[..., 0]) & (o.own | ~vis[o.members])
+        sub = out[o.members]
+        sub[keep] = pos[keep]
+        out[o.members] = sub
     return out, groups, info

@@ -6,6 +6,7 @@ metres, world positions ``[N,T,3]`` metres, poses camera-to-world ``[T,4,4]``.""
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -70,14 +71,18 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
 RIGID_THREADS = 4
 
 
-def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict) -> None:
+def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict,
+                size: tuple[int, int] | None = None) -> None:
     """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
-    (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target)."""
+    (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
+    image's (W, H), px)."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
+    settings = RigidSettings() if cfg.rigid_bridge else replace(RigidSettings(), bridge=None)
     with torch_threads(RIGID_THREADS):
         xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
                                         poses.astype(np.float64), K.astype(np.float64),
-                                        queries[dyn, 0].astype(np.int64), cfg, RigidSettings(), note, dtype, device)
+                                        queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device,
+                                        size)
     info.update(counts)
 
 

@@ -257,7 +257,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                                device, log, info, thinned)
     if cfg.rigid_movers and not cfg.no_dynamic_opt and target is not None:  # w/o D.O.T: no dynamic optimisation at all
         with tm("rigid_movers"):
-            place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info)
+            place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info,
+                        (prior.shape[2], prior.shape[1]))
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
