@@ -129,3 +129,22 @@ def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch):
     assert motion is not None
     share = (drawn[0] == T).mean()  # long tracks among the drawn: 60 * 16 / (60 * 16 + 540 * 2) = 47% of the frames
     assert 0.35 < share < 0.6
+
+
+def test_the_seed_ring_reaches_a_mover_whose_tracks_are_shorter_than_the_failed_seeds():
+    """Long tracks that no rigid motion explains are tried first (the longest remaining track seeds); with the ring
+    each failed patch takes its neighbourhood out of the seeds, so the budget of failures reaches the rigid mover."""
+    uv0, vis0, _, z0, poses, K, qf0 = _scene(rigid=False)
+    uv1, vis1, X1, z1, _, _, _ = _scene(rigid=True, seed=1)
+    uv1 = uv1 + np.array([120.0, 0.0])  # beside the wandering one in the image
+    vis1 = vis1.copy()
+    vis1[:, 12:] = False  # seen in 12 frames, the others in all 16
+    uv, vis, z = np.r_[uv0, uv1], np.r_[vis0, vis1], np.r_[z0, z1]
+    qf = np.r_[qf0, np.random.default_rng(2).integers(0, 12, len(uv1))]
+    start = _lift(uv, z * 1.05, poses, K)
+    rigid = np.r_[np.zeros(len(uv0), bool), np.ones(len(uv1), bool)]
+    for ring, found in ((0, False), (3, True)):  # the wandering tracks take 8 seeds without the ring
+        s = RigidSettings(max_failed=8, seed_ring=ring)
+        _, groups, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), s)
+        assert ((groups[rigid] >= 0).mean() > 0.75) == found, (ring, info)
+        assert (groups[~rigid] < 0).mean() > 0.9

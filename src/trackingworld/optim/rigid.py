@@ -18,7 +18,8 @@ of ``max_px`` or less and an 80th percentile of ``max_px80`` or less over 3 or m
 within ``depth_tol`` of the target's. The motion is fitted again to the group and the group grown again
 (``rounds``); a group of fewer than ``min_tracks`` tracks is dropped. Tracks of a non-rigid object, of the
 background, or that jump from one object to another are not explained and keep stage 3's positions. A track in a
-group takes the motion's positions in every frame the motion is solved in, its hidden frames too.
+group takes the motion's positions in every frame the motion is solved in, its hidden frames too. The groups of one
+object on either side of a gap no track crosses are then joined (:mod:`trackingworld.optim.rigid_bridge`).
 
 Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
 poses camera-to-world ``[T,4,4]`` (OpenCV axes).
@@ -47,15 +48,15 @@ class RigidSettings:
     depth_tol: float = 0.1  # largest relative depth difference of two joined tracks there
     min_tracks: int = 200  # smallest group kept
     seed_tracks: int = 200  # tracks in a seed patch
-    # most seed patches tried, and stop after max_failed seeds in a row gave no group (30 and 12 before stop 62, with
-    # no seed ring: on `hard` 0 no group formed on three of its six movers)
-    max_seeds: int = 60
-    max_failed: int = 30
+    max_seeds: int = 30  # most seed patches tried
+    max_failed: int = 12  # stop after this many seeds in a row gave no group
     # after each seed, the tracks within this many steps of the neighbour graph (:func:`neighbour_pairs`) of its
     # patch and of its group are no seeds any more (they may still join a group): the longest tracks lie on the
     # objects already tried, and seeds drawn there again and again used up max_failed before the shorter-lived
-    # movers had one (0: the seed patch alone, as before stop 62)
-    seed_ring: int = 3
+    # movers had one (0: the seed patch alone). On `hard` 0 with 60 seeds and 30 failing, 3 gave groups on its three
+    # movers that had none, and forty-seven scenes 83.31 -> 83.70, but the 120-frame video of bench_scaling.py
+    # 89.06 -> 87.30 and its step 13.7 -> 23.0 s; left off (docs/lifting.md item 6c, stop 62)
+    seed_ring: int = 0
     min_seen: int = 6  # frames a track must be seen in to join a group
     rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
     # ... until the group changes by no more than this fraction of its tracks. The rounds' groups keep changing by
