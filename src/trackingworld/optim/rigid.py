@@ -175,9 +175,10 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
 
 def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu"):
     """Tracks ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` fitted as points of a rigid ``motion``
-    (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame (:func:`motion_positions` places
-    them); median and 80th percentile of the reprojection error ``[n,2]`` px over the solved frames a track is seen
-    in, inf where fewer than 3; median ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
+    (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame (:func:`object_positions` places them
+    on :func:`motion_poses`); median and 80th percentile of the reprojection error ``[n,2]`` px over the solved
+    frames a track is seen in, inf where fewer than 3; median ``|log(depth / target)|`` ``[n]`` over those frames,
+    NaN where none)."""
     order, R, t = motion
     n = len(vis)
     pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
@@ -198,12 +199,6 @@ def motion_poses(motion, poses: np.ndarray, T: int) -> np.ndarray:
     out = np.full((T, 4, 4), np.nan)
     out[order] = poses[order] @ invert_pose(lie.w2c_to_c2w(R, t))
     return out
-
-
-def motion_positions(P: np.ndarray, motion, poses: np.ndarray, T: int) -> np.ndarray:
-    """World positions ``[n,T,3]`` of points ``P [n,3]`` of the object frame on a rigid ``motion``, NaN in the frames
-    it is not solved in."""
-    return object_positions(P, motion_poses(motion, poses, T))
 
 
 def object_positions(P: np.ndarray, to_world: np.ndarray) -> np.ndarray:

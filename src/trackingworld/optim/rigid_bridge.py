@@ -52,7 +52,7 @@ class BridgeSettings:
     trim: float = 0.8  # ... the fraction of them kept (the nearest) in the fit's second round
 
 
-@dataclass
+@dataclass(eq=False)  # compared and hashed as itself (:func:`bridge` keeps the pairs it tried)
 class RigidObject:
     """A rigid group, or groups merged into one: object-to-world ``motion [T,4,4]`` (NaN where unknown), its
     ``members`` (track indices), their ``points [n,3]`` in the object frame (metres) and ``own [n,T]``."""
@@ -181,23 +181,18 @@ def bridge(objects: list[RigidObject], uv: np.ndarray, vis: np.ndarray, xyz: np.
     """``objects`` with every pair that :func:`join` merges merged, repeatedly (the earliest-ending first) until
     no pair joins."""
     objs = list(objects)
-    merged = True
-    while merged:
-        merged = False
-        order = sorted(range(len(objs)), key=lambda i: objs[i].frames()[-1] if len(objs[i].frames()) else -1)
-        for i in order:
-            for j in range(len(objs)):
-                if i == j:
-                    continue
-                new, frac = join(objs[i], objs[j], uv, vis, xyz, poses, K, size, s)
-                if log and np.isfinite(frac):
-                    fi, fj = objs[i].frames(), objs[j].frames()
-                    log(f"groups in frames {fi[0]}-{fi[-1]} and {fj[0]}-{fj[-1]}: {100 * frac:.0f}% of the first "
-                        f"group's points on the second's tracks, {'joined' if new is not None else 'not joined'}")
-                if new is not None:
-                    objs = [o for k, o in enumerate(objs) if k not in (i, j)] + [new]
-                    merged = True
-                    break
-            if merged:
+    tried = set()  # pairs that did not join: unchanged objects give the same answer, so they are not tested again
+    while True:
+        order = sorted(objs, key=lambda o: o.frames()[-1] if len(o.frames()) else -1)
+        for a, b in ((a, b) for a in order for b in objs if a is not b and (a, b) not in tried):
+            new, frac = join(a, b, uv, vis, xyz, poses, K, size, s)
+            if log and np.isfinite(frac):
+                fa, fb = a.frames(), b.frames()
+                log(f"groups in frames {fa[0]}-{fa[-1]} and {fb[0]}-{fb[-1]}: {100 * frac:.0f}% of the first "
+                    f"group's points on the second's tracks, {'joined' if new is not None else 'not joined'}")
+            if new is not None:
+                objs = [o for o in objs if o is not a and o is not b] + [new]
                 break
-    return objs
+            tried.add((a, b))
+        else:
+            return objs

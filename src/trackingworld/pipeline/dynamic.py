@@ -6,7 +6,6 @@ metres, world positions ``[N,T,3]`` metres, poses camera-to-world ``[T,4,4]``.""
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 
 import numpy as np
 import torch
@@ -77,7 +76,7 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
     image's (W, H), px)."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
-    settings = RigidSettings() if cfg.rigid_bridge else replace(RigidSettings(), bridge=None)
+    settings = RigidSettings() if cfg.rigid_bridge else RigidSettings(bridge=None)
     with torch_threads(RIGID_THREADS):
         xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
                                         poses.astype(np.float64), K.astype(np.float64),
