@@ -26,12 +26,12 @@ from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a s
 from trackingworld.config import OptimConfig
 from trackingworld.eval.dense import static_deviation, static_points
 from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform
+from trackingworld.image import blurred_frames
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.io.tracks import load_tracks
 from trackingworld.optim.labels import mask_regions
 from trackingworld.optim.photo_static import MASK_MARGIN_PX, colour_shares, depth_scales
-from trackingworld.tracking2d.flow_tracker import blurred_frames
 
 ON_POINT_PX = 2.0  # a track within this of its static point over every visible frame followed it
 HIDDEN = 0.97  # the ground-truth depth at the point's projection below this times the point's: a surface hides it

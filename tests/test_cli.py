@@ -93,16 +93,17 @@ def test_stage3_options_reach_the_config():
                                                    "--depth-mover-suspect", "0.7", "--depth-mover-mad", "4",
                                                    "--photo-static", "16",
                                                    "--photo-static-frac", "0.6", "--photo-static-patch", "5",
-                                                   "--vote-once-gap", "inf", "--no-rigid-movers"]))
+                                                   "--vote-once-gap", "inf", "--no-rigid-movers",
+                                                   "--rigid-second-pass", "0"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
     assert cfg.dc_target_order == 2
     assert (cfg.dynamic_cell, cfg.depth_mover_rounds, cfg.depth_mover_suspect, cfg.depth_mover_mad) == (2, 4, 0.7, 4.0)
     assert (cfg.photo_static_grey, cfg.photo_static_frac, cfg.vote_once_gap_px) == (16.0, 0.6, np.inf)
-    assert cfg.photo_static_patch == 5.0 and not cfg.rigid_movers
+    assert cfg.photo_static_patch == 5.0 and not cfg.rigid_movers and cfg.rigid_second_pass == 0
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
-    assert default.rigid_movers
+    assert default.rigid_movers and default.rigid_second_pass == 30
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
     assert got == (d.carry_k, d.carry_reach, d.ts_order, d.stage3_linear) == (d.carry_k, d.carry_reach, 2, "cg")

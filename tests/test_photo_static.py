@@ -7,12 +7,12 @@ from scipy.ndimage import gaussian_filter
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import invert_pose, project, transform, unproject
+from trackingworld.image import blurred_frames
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.optim.labels import DYNAMIC, STATIC, mask_regions
 from trackingworld.optim.photo_static import MASK_MARGIN_PX, depth_scales, near_masks, static_hypothesis
 from trackingworld.pipeline.static_side import photo_rescue
-from trackingworld.tracking2d.flow_tracker import blurred_frames
 
 Q = 5  # the query frame: movers on both sides of it in time
 

@@ -1,6 +1,7 @@
 """optim.rigid: a rigid mover placed by its rigid motion, its scale from the depth targets of all frames."""
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
@@ -131,9 +132,10 @@ def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch):
     assert 0.35 < share < 0.6
 
 
-def test_the_seed_ring_reaches_a_mover_whose_tracks_are_shorter_than_the_failed_seeds():
-    """Long tracks that no rigid motion explains are tried first (the longest remaining track seeds); with the ring
-    each failed patch takes its neighbourhood out of the seeds, so the budget of failures reaches the rigid mover."""
+def test_the_second_pass_reaches_a_mover_whose_tracks_are_shorter_than_the_failed_seeds():
+    """Long tracks that no rigid motion explains are tried first (the longest remaining track seeds) and use up the
+    first pass's failures; the second pass keeps its seeds away from every patch tried, so it reaches the rigid
+    mover."""
     uv0, vis0, _, z0, poses, K, qf0 = _scene(rigid=False)
     uv1, vis1, X1, z1, _, _, _ = _scene(rigid=True, seed=1)
     uv1 = uv1 + np.array([120.0, 0.0])  # beside the wandering one in the image
@@ -143,8 +145,17 @@ def test_the_seed_ring_reaches_a_mover_whose_tracks_are_shorter_than_the_failed_
     qf = np.r_[qf0, np.random.default_rng(2).integers(0, 12, len(uv1))]
     start = _lift(uv, z * 1.05, poses, K)
     rigid = np.r_[np.zeros(len(uv0), bool), np.ones(len(uv1), bool)]
-    for ring, found in ((0, False), (3, True)):  # the wandering tracks take 8 seeds without the ring
-        s = RigidSettings(max_failed=8, seed_ring=ring)
+    for more, found in ((0, False), (30, True)):  # the wandering tracks take the first pass's 8 seeds
+        s = RigidSettings(max_failed=8, ring_seeds=more)
         _, groups, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), s)
-        assert ((groups[rigid] >= 0).mean() > 0.75) == found, (ring, info)
+        assert ((groups[rigid] >= 0).mean() > 0.75) == found, (more, info)
         assert (groups[~rigid] < 0).mean() > 0.9
+
+
+def test_a_negative_second_pass_is_refused_in_one_line():
+    from trackingworld.errors import InputError
+    from trackingworld.pipeline.world import check_optim
+
+    with pytest.raises(InputError, match="rigid_second_pass -1: the seeds are 0 \\(one pass\\) or more"):
+        check_optim(OptimConfig(rigid_second_pass=-1))
+    check_optim(OptimConfig(rigid_second_pass=0))

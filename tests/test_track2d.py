@@ -481,7 +481,7 @@ def test_flow_patch_option_reaches_the_tracker(capsys):
 
 
 def test_patches_ignore_an_even_change_of_brightness_and_see_a_shift():
-    from trackingworld.tracking2d.flow_tracker import patch_offsets, sample_patches
+    from trackingworld.image import patch_offsets, sample_patches
 
     frames, _, _ = occluded_video()
     img = frames[0].astype(np.float32)

@@ -24,7 +24,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from trackingworld.tracking2d.flow_tracker import sample_image
+from trackingworld.image import sample_image
 
 GRAD_LOG_PER_PX = 0.03  # log depth per px at which a pixel's weight falls to 1/e (a blurred edge is steeper)
 MIN_SUPPORT = 1e-3  # normalised-convolution weight below which a pixel keeps the prior

@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from trackingworld.geometry import in_image, invert_pose, nearest_pixel, project, transform, unproject
-from trackingworld.tracking2d.flow_tracker import patch_offsets, sample_image, sample_patches
+from trackingworld.image import patch_offsets, sample_image, sample_patches
 
 # the frames where the point lies within this many px of the coarse masks do not count: the test reads the masks'
 # sure-static region (optim.labels.mask_regions with this margin)
@@ -206,7 +206,7 @@ def static_hypothesis(uv_q: np.ndarray, z_q: np.ndarray, qf: np.ndarray, poses_c
 
     ``uv_q [n,2]`` px and ``z_q [n]`` metres (camera z): each track's query pixel and its depth estimate;
     ``qf [n]`` query frames; ``poses_c2w [T,4,4]``; ``K [3,3]``; ``blur [T,H,W,3]`` uint8
-    (``tracking2d.flow_tracker.blurred_frames``); ``open_ [T,H,W]`` bool, where the hypothesis is tested (the
+    (``trackingworld.image.blurred_frames``); ``open_ [T,H,W]`` bool, where the hypothesis is tested (the
     masks' sure-static region: ``optim.labels.mask_regions`` with MASK_MARGIN_PX); ``grey``: colour tolerance
     (grey levels, max over RGB); ``frac``, ``min_frames``: the share of at least that many tested frames (every
     frame but the query frame, strided to at most MAX_TESTED_FRAMES) that must match; ``scales``: the depth scales

@@ -50,13 +50,16 @@ class RigidSettings:
     seed_tracks: int = 200  # tracks in a seed patch
     max_seeds: int = 30  # most seed patches tried
     max_failed: int = 12  # stop after this many seeds in a row gave no group
-    # after each seed, the tracks within this many steps of the neighbour graph (:func:`neighbour_pairs`) of its
-    # patch and of its group are no seeds any more (they may still join a group): the longest tracks lie on the
-    # objects already tried, and seeds drawn there again and again used up max_failed before the shorter-lived
-    # movers had one (0: the seed patch alone). On `hard` 0 with 60 seeds and 30 failing, 3 gave groups on its three
-    # movers that had none, and forty-seven scenes 83.31 -> 83.70, but the 120-frame video of bench_scaling.py
-    # 89.06 -> 87.30 and its step 13.7 -> 23.0 s; left off (docs/lifting.md item 6c, stop 62)
-    seed_ring: int = 0
+    # a second pass of at most ring_seeds seeds (0: none), ending after ring_failed in a row gave no group, whose
+    # seeds keep seed_ring steps of the neighbour graph (:func:`neighbour_pairs`) away from every seed patch and
+    # group tried before (they may still join a group): the longest tracks lie on the objects already tried, and
+    # seeds drawn there again and again used up max_failed before the shorter-lived movers had one. Forty-seven
+    # scenes 83.32 -> 83.70 (`hard` 1 / 2 / 13 +3.2 / +2.4 / +2.6), the groups of the first pass unchanged; as one
+    # pass with the ring (stop 62) the 120-frame video of bench_scaling.py lost 1.8 points, with a second pass
+    # nothing (docs/lifting.md item 6d)
+    ring_seeds: int = 30
+    ring_failed: int = 18
+    seed_ring: int = 3
     min_seen: int = 6  # frames a track must be seen in to join a group
     rounds: int = 8  # most fits of a group's motion, each to the tracks the one before explained ...
     # ... until the group changes by no more than this fraction of its tracks. The rounds' groups keep changing by
@@ -69,6 +72,7 @@ class RigidSettings:
     # object whose tracks were lost and started again halfway (the 120-frame video of bench_scaling.py) with its
     # halves' relative motion off: the tracks of one half placed in the other's frames 20 cm off (docs/lifting.md 6b)
     max_fit: int = 800
+    rng_seed: int = 0  # the draws' random seed
     max_px: float = 0.6  # a track's largest median reprojection error under the rigid motion
     max_px80: float = 1.5  # ... and 80th percentile of it
     iters: int = 30  # Levenberg-Marquardt iterations of a group's final fit
@@ -222,7 +226,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     out = xyz.copy()
     N, T = vis.shape
     z = camera_depths(xyz, poses)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(s.rng_seed)
     seen = vis.sum(1)
     left = seen >= s.min_seen
     pairs = neighbour_pairs(uv, vis, z, qf, s)
@@ -256,22 +260,13 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         members = np.flatnonzero(inl)
         return members, pts[members]
 
-    seeds = left.copy()
-    failed = 0
-    groups = np.full(N, -1)
-    objects: list[RigidObject] = []
-    info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
-    for _ in range(s.max_seeds):
-        cand = np.flatnonzero(seeds & left)
-        if left.sum() < s.min_tracks or not len(cand):
-            break
-        info["rigid_seeds"] += 1
-        i = int(cand[np.argmax(seen[cand])])  # the longest remaining track
+    def try_seed(i):
+        """(members [n], their points [n,3] on the motion, the motion) of the group grown from the seed track ``i``,
+        and the seed patch; the group None where it has fewer than ``min_tracks`` or no motion is found."""
         t = int(qf[i])
         pool = np.flatnonzero(left & vis[:, t])
         pool = pool[_log_ratio(z[pool, t], z[i, t]) <= s.depth_tol]
         near = pool[np.argsort(np.linalg.norm(uv[pool, t] - uv[i, t], axis=1))[: s.seed_tracks]]
-        seeds[near] = False
         members = near
         for _round in range(s.rounds):
             motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
@@ -283,28 +278,55 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             members = grown
             if len(members) < s.min_tracks or settled:
                 break
-        if motion is not None and len(members) >= s.min_tracks:  # the group's motion, fitted to it in full
-            motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
-                                dtype, device)
-            if motion is not None:
-                members, P = grow(members, motion)
-        if s.seed_ring:
-            seeds[_ring(adj, np.union1d(near, members), s.seed_ring)] = False
         if motion is None or len(members) < s.min_tracks:
-            failed += 1
-            if failed >= s.max_failed:
-                break
-            continue
+            return None, near
+        motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng, dtype,
+                            device)  # the group's motion, fitted to it in full
+        if motion is None:
+            return None, near
+        members, P = grow(members, motion)
+        return ((members, P, motion) if len(members) >= s.min_tracks else None), near
+
+    groups = np.full(N, -1)
+    objects: list[RigidObject] = []
+    info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
+    seeds = left.copy()
+    tried = []  # the seed patches and groups of the first pass
+    passes = [(s.max_seeds, s.max_failed, False)]
+    if s.ring_seeds:
+        passes.append((s.ring_seeds, s.ring_failed, True))
+    for n_seeds, max_failed, ring in passes:
+        if ring and tried:  # the second pass: no seed near what the first one tried
+            seeds[_ring(adj, np.unique(np.concatenate(tried)), s.seed_ring)] = False
         failed = 0
-        O = motion_poses(motion, poses, T)
-        objects.append(RigidObject(O, members, P, np.repeat(np.isfinite(O[None, :, 0, 0]), len(members), 0)))
-        left[members] = False
-        groups[members] = info["rigid_groups"]
-        info["rigid_groups"] += 1
-        info["rigid_tracks"] += int(len(members))
-        if log:
-            log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames "
-                f"(seed {info['rigid_seeds']} of at most {s.max_seeds})")
+        for _ in range(n_seeds):
+            cand = np.flatnonzero(seeds & left)
+            if left.sum() < s.min_tracks or not len(cand):
+                break
+            info["rigid_seeds"] += 1
+            i = int(cand[np.argmax(seen[cand])])  # the longest remaining track
+            group, near = try_seed(i)
+            seeds[near] = False
+            if ring:
+                seeds[_ring(adj, np.union1d(near, group[0] if group else near), s.seed_ring)] = False
+            else:
+                tried += [near] + ([group[0]] if group else [])
+            if group is None:
+                failed += 1
+                if failed >= max_failed:
+                    break
+                continue
+            failed = 0
+            members, P, motion = group
+            O = motion_poses(motion, poses, T)
+            objects.append(RigidObject(O, members, P, np.repeat(np.isfinite(O[None, :, 0, 0]), len(members), 0)))
+            left[members] = False
+            groups[members] = info["rigid_groups"]
+            info["rigid_groups"] += 1
+            info["rigid_tracks"] += int(len(members))
+            if log:
+                log(f"group {info['rigid_groups']}: {len(members)} tracks in {len(motion[0])} frames "
+                    f"(seed {info['rigid_seeds']}{', the second pass' if ring else ''})")
     if s.bridge is not None and size is not None:
         n = len(objects)
         objects = bridge(objects, uv, vis, xyz, poses, K, size, s.bridge, log)

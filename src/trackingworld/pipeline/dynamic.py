@@ -76,7 +76,9 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
     image's (W, H), px)."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
-    settings = RigidSettings() if cfg.rigid_bridge else RigidSettings(bridge=None)
+    settings = RigidSettings(ring_seeds=cfg.rigid_second_pass)
+    if not cfg.rigid_bridge:
+        settings.bridge = None
     with torch_threads(RIGID_THREADS):
         xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
                                         poses.astype(np.float64), K.astype(np.float64),

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from trackingworld.config import DC_TARGETS, OptimConfig
 from trackingworld.geometry import invert_pose, transform
+from trackingworld.image import sample_image
 from trackingworld.optim.densify import propagate_ratio, thinned_observations
 from trackingworld.optim.depth_movers import (
     blur_tolerant,
@@ -26,7 +27,6 @@ from trackingworld.optim.edge_prior import edge_blur_px, inner_prior
 from trackingworld.optim.ratio_field import fit_log_fields
 from trackingworld.optim.static_tests import spread_observations
 from trackingworld.pipeline.lift import sample_maps
-from trackingworld.tracking2d.flow_tracker import sample_image
 
 MIN_FIELD_SAMPLES = 50  # static references a frame's depth-correction field needs after the margin
 MOVER_RANGE_PX = (1, 4)  # the depth-discrepancy test's estimated range: from the prior's edge blur, within these

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackingworld.geometry import unproject
-from trackingworld.tracking2d.flow_tracker import sample_image
+from trackingworld.image import sample_image
 
 
 def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = None,

@@ -16,6 +16,7 @@ import torch
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import camera_depths, nearest_pixel, transform, unproject
+from trackingworld.image import blurred_frames
 from trackingworld.optim.densify import cell_representatives, propagate_ratio
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, mask_regions
 from trackingworld.optim.occluded_static import static_behind_occluders
@@ -33,7 +34,6 @@ from trackingworld.optim.static_tests import (
     static_outliers,
     vote_short,
 )
-from trackingworld.tracking2d.flow_tracker import blurred_frames
 
 VOTE_CELL_PX = 4  # the tracks a short track is voted on by: one per (query frame, 4 px square)
 

@@ -323,6 +323,8 @@ def check_optim(o: OptimConfig) -> None:
                          "distance over 0 px, the depth ratio over 0 and at most 1, the frames in view 1 or more")
     if not 0 <= o.photo_moving_share <= 1:
         raise InputError(f"photo_moving_share {o.photo_moving_share}: a share from 0 (off) to 1")
+    if o.rigid_second_pass < 0:
+        raise InputError(f"rigid_second_pass {o.rigid_second_pass}: the seeds are 0 (one pass) or more")
     if o.dc_edge_sigma_px < 0:
         raise InputError(f"dc_edge_sigma_px {o.dc_edge_sigma_px}: a Gaussian's width (px) is 0 (off) or more")
     if o.dc_target_smooth < 0 or o.dc_field_smooth < 0 or o.dc_field_temporal < 0 or o.dynamic_cell < 0:
