@@ -319,8 +319,8 @@ class OptimConfig:
     # (not in the paper) ... and a second pass of at most this many seeds for the groups, each kept away from the
     # patches the first pass tried: the first pass's failures (12 in a row) are used up on the longest tracks, which
     # lie on objects already grouped and on static background inside the masks, before a shorter-lived mover's tracks
-    # seed. Forty-seven synthetic scenes: world 3D accuracy 83.32 -> 83.70, 27 up and 7 down by up to 0.51, the
-    # rigid step about 3 s longer per scene (optim.rigid, docs/lifting.md item 6d; 0: one pass, as before stop 63)
+    # seed. Forty-seven synthetic scenes: world 3D accuracy 83.32 -> 83.70, 28 up and 11 down by up to 0.51, the
+    # optimisation 14.2 -> 18.9 s per scene (optim.rigid, docs/lifting.md item 6d; 0: one pass, as before stop 63)
     rigid_second_pass: int = 30
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac

@@ -16,7 +16,9 @@ nearest it in its query frame (at depths within ``depth_tol``) give a first moti
 over image neighbours (:func:`neighbour_pairs`) through the tracks the motion explains: a median reprojection error
 of ``max_px`` or less and an 80th percentile of ``max_px80`` or less over 3 or more frames, and a depth on the motion
 within ``depth_tol`` of the target's. The motion is fitted again to the group and the group grown again
-(``rounds``); a group of fewer than ``min_tracks`` tracks is dropped. Tracks of a non-rigid object, of the
+(``rounds``); a group of fewer than ``min_tracks`` tracks is dropped. The search ends after ``max_failed`` seeds in a
+row gave no group; a second search (``ring_seeds``) then seeds only ``seed_ring`` steps of the neighbour graph away
+from every patch and group the first one tried. Tracks of a non-rigid object, of the
 background, or that jump from one object to another are not explained and keep stage 3's positions. A track in a
 group takes the motion's positions in every frame the motion is solved in, its hidden frames too. The groups of one
 object on either side of a gap no track crosses are then joined (:mod:`trackingworld.optim.rigid_bridge`).
