@@ -79,6 +79,8 @@ ROWS = {
     "every dynamic track solved in stage 3 (paper)": ("trackingworld", {"dynamic_cell": 0}, ""),
     "no reverse photometric test (--photo-moving 0)": ("trackingworld", {"photo_moving_share": 0.0}, ""),
     "no rigid-mover placement (--no-rigid-movers)": ("trackingworld", {"rigid_movers": False}, ""),
+    "rigid groups not joined across gaps (--no-rigid-bridge)": ("trackingworld", {"rigid_bridge": False}, ""),
+    "one search for rigid groups (--rigid-second-pass 0)": ("trackingworld", {"rigid_second_pass": 0}, ""),
     f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),
