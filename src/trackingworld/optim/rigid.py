@@ -309,10 +309,11 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             i = int(cand[np.argmax(seen[cand])])  # the longest remaining track
             group, near = try_seed(i)
             seeds[near] = False
+            here = [near] if group is None else [near, group[0]]  # this seed's patch and group
             if ring:
-                seeds[_ring(adj, np.union1d(near, group[0] if group else near), s.seed_ring)] = False
+                seeds[_ring(adj, np.concatenate(here), s.seed_ring)] = False
             else:
-                tried += [near] + ([group[0]] if group else [])
+                tried += here
             if group is None:
                 failed += 1
                 if failed >= max_failed:
