@@ -213,6 +213,12 @@ class OptimConfig:
     # pixels: largest reprojection residual <= this (px; 0: the offset test alone). Short tracks on a masked mover
     # move less than epsilon over their life and passed the metric test.
     mask_dynamic_px: float = 1.0
+    # (not in the paper) ... and a track whose query pixel lies this deep inside its frame's coarse mask or deeper
+    # (px, optim.labels.depth_in_mask) is not tested at all: it keeps the masks' dynamic label. A coarse mask is the
+    # object dilated by a few pixels, so the static points it covers lie in a band along its border; deeper in is
+    # the object, and an object approaching the camera holds a static point's pixels over the few frames a track
+    # follows it (`hard` 0 object 9). 0: every masked track is tested.
+    mask_core_px: float = 0.0
     # (not in the paper) a masked / ambiguous track that fails that test (and a static-region track the vote calls
     # moving that fails its own test: ten scenes, static kept 92.23 -> 92.54) is static after all when its 2D track
     # holds a static point from its query frame on and then slips (dragged along by the mover beside it): a

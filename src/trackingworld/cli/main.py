@@ -353,6 +353,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mask-dynamic-px", type=float, default=d.mask_dynamic_px,
                    help="a track in the dynamic mask is static only if its static fit's largest reprojection "
                         "residual is at most this many px (0: the offset test alone)")
+    g.add_argument("--mask-core-px", type=float, default=d.mask_core_px, metavar="PX",
+                   help="(not in the paper) a track whose query pixel lies this deep inside the coarse mask or deeper "
+                        "keeps the masks' dynamic label untested (the static points a dilated mask covers lie in a "
+                        "band along its border; 0: every masked track gets the as-static test)")
     g.add_argument("--slip-run", type=float, default=d.slip_run, metavar="FRAC",
                    help="(not in the paper) a masked or ambiguous track, or one the vote calls moving, that fails the "
                         "static test is static when "
@@ -492,7 +496,7 @@ def _optim_config(a):
         dc_field_temporal=a.dc_field_temporal, dc_edge_sigma_px=a.dc_edge_sigma,
         carry_k=a.carry_k, carry_reach=a.carry_reach, carry_motion_frames=a.carry_motion,
         carry_stat=a.carry_stat,
-        mask_dynamic_px=a.mask_dynamic_px, slip_run=a.slip_run, slip_px=a.slip_px,
+        mask_dynamic_px=a.mask_dynamic_px, mask_core_px=a.mask_core_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         depth_mover_rounds=a.depth_mover_rounds, depth_mover_mad=a.depth_mover_mad,

@@ -54,3 +54,20 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     labels[q_static & (n_sta * 2 >= nvis)] = STATIC
     labels[n_dyn * 2 > nvis] = DYNAMIC
     return labels
+
+
+def depth_in_mask(tracks: np.ndarray, query_frame: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    """``[N]`` float32 px: how deep each track's query pixel lies inside its query frame's coarse mask (the
+    Euclidean distance to the nearest pixel outside it; 0 outside the masks). tracks [N,T,2] px, query_frame
+    [N], masks [T,H,W] bool. A coarse mask is the object dilated by a few pixels: a static point it covers lies
+    in that band, its core is the object."""
+    N = len(query_frame)
+    H, W = masks.shape[1:]
+    q = query_frame.astype(np.int64)
+    x, y = nearest_pixel(tracks[np.arange(N), q], W, H)
+    out = np.zeros(N, np.float32)
+    for t in np.unique(q):
+        s = np.flatnonzero(q == t)
+        inside = cv2.distanceTransform(masks[t].astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        out[s] = inside[y[s], x[s]]
+    return out

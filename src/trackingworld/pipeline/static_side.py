@@ -71,13 +71,18 @@ class StaticFits:
         self.fit(tracks, vis, xyz, replace(self.cfg, lambda_dc=lambda_dc), iters)
 
 
-def classify_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict, offsets: bool = True) -> np.ndarray:
+def classify_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict, offsets: bool = True,
+                    core: np.ndarray | None = None) -> np.ndarray:
     """The tracks the masks call dynamic or ambiguous (``labels [N]``, seen twice or more) get the as-static test
     with the poses held: the coarse masks are dilated, and a track that fits one static point is static (inside
     the sure-dynamic region only when the fit also holds within ``mask_dynamic_px``); one that fails and slips off
-    a point it held is that point over its run (``optim.slip``). ``offsets`` False (w/o O_static): no test."""
+    a point it held is that point over its run (``optim.slip``). ``offsets`` False (w/o O_static): no test.
+    ``core [N]`` bool: the tracks deep inside the masks (``mask_core_px``), left dynamic untested."""
     cfg = fits.cfg
-    cand = np.flatnonzero((labels != STATIC) & (vis.sum(1) >= 2))
+    cand = (labels != STATIC) & (vis.sum(1) >= 2)
+    if core is not None:
+        cand &= ~core
+    cand = np.flatnonzero(cand)
     if not (offsets and len(cand)):
         return vis
     # in float32 whatever cfg.dtype: a threshold test at epsilon = 0.1 m needs no more, and it halves the
@@ -96,7 +101,8 @@ def classify_masked(labels, vis, qf, fits: StaticFits, dynamic, xyz, info: dict,
     dynamic[fixed] = False
     dynamic[cand[~still]] = True
     xyz[fixed] = Xc[still][:, None]
-    info["classify"] = {"tested": int(len(cand)), "static": int(still.sum()), "slipped": slipped}
+    info["classify"] = {"tested": int(len(cand)), "static": int(still.sum()), "slipped": slipped,
+                        "core": 0 if core is None else int(core.sum())}
     return vis
 
 

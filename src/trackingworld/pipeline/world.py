@@ -22,7 +22,7 @@ from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, ratio_maps
-from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, label_tracks
+from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, depth_in_mask, label_tracks
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.optim.static_tests import moving_tracks
 from trackingworld.pipeline.baseline import sample_colors
@@ -216,7 +216,10 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     dynamic[s2[moving_s2]] = True
     fits = StaticFits(uv, Dfit, K, R, t, cfg, device)  # the static fits from here on: poses held
     with tm("classify"):
-        vis = classify_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets)
+        core = None
+        if cfg.mask_core_px > 0:  # the masks' cores: their dynamic label stands
+            core = (labels == DYNAMIC) & (depth_in_mask(tr.tracks, qf, masks) >= cfg.mask_core_px)
+        vis = classify_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets, core)
     with tm("rebuild_static"):
         vis, once = rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits, dynamic, xyz, info, p.offsets)
     if cfg.depth_mover_log > 0:
@@ -323,6 +326,8 @@ def check_optim(o: OptimConfig) -> None:
                          "distance over 0 px, the depth ratio over 0 and at most 1, the frames in view 1 or more")
     if not 0 <= o.photo_moving_share <= 1:
         raise InputError(f"photo_moving_share {o.photo_moving_share}: a share from 0 (off) to 1")
+    if not o.mask_core_px >= 0:
+        raise InputError(f"mask_core_px {o.mask_core_px}: the depth inside the masks (px) is 0 (off) or more")
     if o.rigid_second_pass < 0:
         raise InputError(f"rigid_second_pass {o.rigid_second_pass}: the seeds are 0 (one pass) or more")
     if o.dc_edge_sigma_px < 0:

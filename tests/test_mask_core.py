@@ -1,0 +1,48 @@
+"""The masks' cores keep their dynamic label (``OptimConfig.mask_core_px``, ``optim.labels.depth_in_mask``)."""
+
+import numpy as np
+import pytest
+
+from test_own_test import K, _wall_scene, masked_box
+from trackingworld.config import OptimConfig
+from trackingworld.errors import InputError
+from trackingworld.optim.labels import depth_in_mask
+from trackingworld.pipeline import world
+from trackingworld.pipeline.world import check_optim
+
+
+def test_depth_in_mask_is_the_distance_to_the_nearest_pixel_outside_in_the_query_frame():
+    masks = np.zeros((2, 40, 60), bool)
+    masks[0, 10:30, 10:50] = True  # frame 0: a 40 x 20 box
+    tracks = np.zeros((4, 2, 2))
+    tracks[:, 0] = [[30, 20], [12, 20], [5, 5], [30, 20]]  # centre, 2 px in from the left edge, outside, centre
+    got = depth_in_mask(tracks, np.array([0, 0, 0, 1]), masks)
+    assert abs(got[0] - 10) <= 0.5  # 10 px to the rows above and below the box
+    assert abs(got[1] - 3) <= 0.5  # pixel 12 is the third column in: pixel 9 is the nearest outside
+    assert got[2] == 0 and got[3] == 0  # outside; frame 1 has no mask
+
+
+def test_a_static_wall_under_a_wrong_mask_keeps_its_core_dynamic_and_its_band_static():
+    """A (wrong) dynamic mask over a 56 x 52 px patch of a static wall: with the masks' cores kept, the tracks 10 px
+    or more inside stay dynamic and those of the band within it are static (the as-static test); without, all of
+    the sure-dynamic region is static."""
+    tr, prior, _, slipped, mover, _ = _wall_scene()
+    masks, sure = masked_box(prior.shape, tr.queries, (20, 76, 10, 62), margin=3)
+    x, y = tr.queries[:, 1], tr.queries[:, 2]
+    inside = np.minimum.reduce([x - 19, 76 - x, y - 9, 62 - y])  # px to the nearest pixel outside the box
+    judged = np.ones(len(x), bool)
+    judged[slipped] = judged[mover] = False
+    core = judged & (inside >= 11)  # clear of the distance transform's rounding at 10
+    band = judged & sure & (inside <= 8)
+    on = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, mask_core_px=10), {})
+    off = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, mask_core_px=0), {})
+    assert core.sum() > 500 and band.sum() > 500
+    assert on["is_dynamic"][core].all() and not on["is_dynamic"][band].any()
+    assert not off["is_dynamic"][core | band].any()
+    assert on["info"]["classify"]["core"] >= core.sum()
+
+
+def test_a_negative_core_depth_is_refused():
+    with pytest.raises(InputError, match="mask_core_px -1.0: the depth inside the masks"):
+        check_optim(OptimConfig(mask_core_px=-1.0))
+    check_optim(OptimConfig(mask_core_px=0.0))
