@@ -159,3 +159,32 @@ def test_a_negative_second_pass_is_refused_in_one_line():
     with pytest.raises(InputError, match="rigid_second_pass -1: the seeds are 0 \\(one pass\\) or more"):
         check_optim(OptimConfig(rigid_second_pass=-1))
     check_optim(OptimConfig(rigid_second_pass=0))
+
+
+def test_the_motion_that_places_a_group_is_fitted_to_that_group(monkeypatch):
+    """The rounds' short fits can end on a group that the full fit then grows much larger; its motion, fitted to part
+    of the object, places the rest. ``final_rounds`` fits it again to the grown group until that settles."""
+    from trackingworld.optim import rigid
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    rng = np.random.default_rng(3)
+    target = z * (1 + 0.06 * (W / 2 - uv[..., 0]) / (W / 2)) * (1 + 0.01 * rng.standard_normal(z.shape))
+    uv = uv + 0.2 * rng.standard_normal(uv.shape)  # a prior warped across the image, 2D noise of 0.2 px
+    start = _lift(uv, target, poses, K)
+    events = []
+    real = rigid.fit_motion
+    monkeypatch.setattr(rigid, "fit_motion", lambda *a, **kw: (  # the full fits only (the rounds' pass iters)
+        len(a) < 12 and kw.get("iters") is None and events.append(("fit", len(a[0])))) or real(*a, **kw))
+    gaps = {}
+    for final in (0, 3):
+        events.clear()
+        s = RigidSettings(final_rounds=final, rounds=1, round_iters=1, seed_tracks=60, min_tracks=50)
+        out, groups, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), s,
+                                         log=lambda m: events.append(("group", int(m.split()[2]))))
+        assert info["rigid_groups"] >= 2 and np.isfinite(out).all()
+        fitted = [next(n for kind, n in events[:i][::-1] if kind == "fit")
+                  for i, (kind, _) in enumerate(events) if kind == "group"]
+        sizes = [n for kind, n in events if kind == "group"]
+        gaps[final] = max(abs(n - f) / f for n, f in zip(sizes, fitted, strict=True))
+    assert gaps[0] > 0.1  # the case arises without the final rounds ...
+    assert gaps[3] <= s.settle  # ... and with them each group's motion is fitted to it

@@ -16,12 +16,14 @@ nearest it in its query frame (at depths within ``depth_tol``) give a first moti
 over image neighbours (:func:`neighbour_pairs`) through the tracks the motion explains: a median reprojection error
 of ``max_px`` or less and an 80th percentile of ``max_px80`` or less over 3 or more frames, and a depth on the motion
 within ``depth_tol`` of the target's. The motion is fitted again to the group and the group grown again
-(``rounds``); a group of fewer than ``min_tracks`` tracks is dropped. The search ends after ``max_failed`` seeds in a
-row gave no group; a second search (``ring_seeds``) then seeds only ``seed_ring`` steps of the neighbour graph away
-from every patch and group the first one tried. Tracks of a non-rigid object, of the
-background, or that jump from one object to another are not explained and keep stage 3's positions. A track in a
-group takes the motion's positions in every frame the motion is solved in, its hidden frames too. The groups of one
-object on either side of a gap no track crosses are then joined (:mod:`trackingworld.optim.rigid_bridge`).
+(``rounds``, short fits), then with the full fit, again while the group keeps changing (``final_rounds``), so that
+the motion that places a group is the one fitted to it; a group of fewer than ``min_tracks`` tracks is dropped. The
+search ends after ``max_failed`` seeds in a row gave no group; a second search (``ring_seeds``) then seeds only
+``seed_ring`` steps of the neighbour graph away from every patch and group the first one tried. Tracks of a
+non-rigid object, of the background, or that jump from one object to another are not explained and keep stage 3's
+positions. A track in a group takes the motion's positions in every frame the motion is solved in, its hidden frames
+too. The groups of one object on either side of a gap no track crosses are then joined
+(:mod:`trackingworld.optim.rigid_bridge`).
 
 Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
 poses camera-to-world ``[T,4,4]`` (OpenCV axes).
@@ -69,6 +71,10 @@ class RigidSettings:
     # With 0.04, thirty-five scenes 83.14 -> 83.21 (14 up, 13 down, `hard` 3 +2.23, `default` 22 -0.25) and the
     # 120-frame video's step 20.8 -> 13.5 s (docs/lifting.md 6b, stop 60)
     settle: float = 0.04
+    # full fits again, each to the group the one before grew, while it changes by more than ``settle``: the rounds'
+    # fits are short and end on a group the full fit then grows by up to 4x (`default` 22: 556 -> 2,125 tracks),
+    # and its motion, fitted to a corner of the object, placed the rest 5% too far (docs/lifting.md item 6e)
+    final_rounds: int = 3
     # tracks in the bundle adjustment (the rest are fitted to its poses), drawn with a chance in proportion to the
     # frames each is seen in: the long tracks tie the motion's far-apart frames together. A uniform draw left an
     # object whose tracks were lost and started again halfway (the 120-frame video of bench_scaling.py) with its
@@ -286,7 +292,18 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                             device)  # the group's motion, fitted to it in full
         if motion is None:
             return None, near
-        members, P = grow(members, motion)
+        grown, P = grow(members, motion)
+        for _round in range(s.final_rounds):  # fitted again while the full fit's group keeps changing
+            if len(np.setxor1d(grown, members)) <= s.settle * len(members) or len(grown) < s.min_tracks:
+                break
+            members = grown
+            again = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
+                               dtype, device)
+            if again is None:
+                break
+            motion = again
+            grown, P = grow(members, motion)
+        members = grown
         return ((members, P, motion) if len(members) >= s.min_tracks else None), near
 
     groups = np.full(N, -1)
