@@ -268,6 +268,15 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         members = np.flatnonzero(inl)
         return members, pts[members]
 
+    def refit(members, iters=None):
+        """The rigid motion of the tracks ``members`` (:func:`fit_motion`; ``iters`` None: the full fit)."""
+        return fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng, dtype,
+                          device, iters)
+
+    def settled(grown, members) -> bool:
+        """Whether a group changed by no more than ``settle`` of its tracks from ``members`` to ``grown``."""
+        return len(np.setxor1d(grown, members)) <= s.settle * len(members)
+
     def try_seed(i):
         """(members [n], their points [n,3] on the motion, the motion) of the group grown from the seed track ``i``,
         and the seed patch; the group None where it has fewer than ``min_tracks`` or no motion is found."""
@@ -277,33 +286,29 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         near = pool[np.argsort(np.linalg.norm(uv[pool, t] - uv[i, t], axis=1))[: s.seed_tracks]]
         members = near
         for _round in range(s.rounds):
-            motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
-                                dtype, device, s.round_iters)
+            motion = refit(members, s.round_iters)
             if motion is None:
                 break
             grown, _ = grow(near, motion)
-            settled = len(np.setxor1d(grown, members)) <= s.settle * len(members)
+            done = settled(grown, members)
             members = grown
-            if len(members) < s.min_tracks or settled:
+            if len(members) < s.min_tracks or done:
                 break
         if motion is None or len(members) < s.min_tracks:
             return None, near
-        motion = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng, dtype,
-                            device)  # the group's motion, fitted to it in full
-        if motion is None:
-            return None, near
-        grown, P = grow(members, motion)
-        for _round in range(s.final_rounds):  # fitted again while the full fit's group keeps changing
-            if len(np.setxor1d(grown, members)) <= s.settle * len(members) or len(grown) < s.min_tracks:
-                break
-            members = grown
-            again = fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng,
-                               dtype, device)
+        # the group's motion fitted to it in full, then again while the group that fit grows keeps changing
+        for k in range(1 + s.final_rounds):
+            again = refit(members)
             if again is None:
+                if k == 0:
+                    return None, near
                 break
             motion = again
             grown, P = grow(members, motion)
-        members = grown
+            done = settled(grown, members) or len(grown) < s.min_tracks
+            members = grown
+            if done:
+                break
         return ((members, P, motion) if len(members) >= s.min_tracks else None), near
 
     groups = np.full(N, -1)
