@@ -249,8 +249,9 @@ def test_a_short_masked_track_the_vote_makes_static_gets_its_static_point():
     tracks = tr.tracks.copy()
     tracks[who, 2, 1] += 1.5
     tr = TrackResult(tracks, tr.visible, tr.confidence, tr.queries)
-    on = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False), {})
-    off = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, vote_short=1), {})
+    # every masked track tested: the box's core (12 px deep) would otherwise keep the mask's label untested
+    on = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, mask_core_px=0), {})
+    off = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, mask_core_px=0, vote_short=1), {})
     assert off["is_dynamic"][who].mean() > 0.9
     assert not on["is_dynamic"][who].any()
     np.testing.assert_allclose(on["xyz"][who][:, 0, 2], 5.0, atol=0.25)  # world z of the wall (camera 0 at z 0)
@@ -267,7 +268,7 @@ def test_in_a_video_barely_longer_than_vote_short_the_tracks_seen_once_still_tak
     vis = tr.visible.copy()
     vis[once, 1:] = False
     tr = TrackResult(tr.tracks, vis, tr.confidence, tr.queries)
-    out = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False), {})
+    out = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, mask_core_px=0), {})  # every one tested
     assert vis.sum(1).max() <= OptimConfig().vote_short
     assert len(once) > 20 and not out["is_dynamic"][once].any()
 

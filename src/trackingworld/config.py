@@ -217,10 +217,11 @@ class OptimConfig:
     # (px, optim.labels.depth_in_mask) is not tested at all: it keeps the masks' dynamic label. A coarse mask is the
     # object dilated by a few pixels, so the static points it covers lie in a band along its border; deeper in is
     # the object, and an object approaching the camera holds a static point's pixels over the few frames a track
-    # follows it (`hard` 0 object 9). 0: every masked track is tested (the default). 10 on forty-seven synthetic
-    # scenes, with 40 second-search seeds: world 3D accuracy 83.699 -> 83.622, `hard` 0 72.44 -> 73.54 but `default`
-    # 22 -5.40 through the rigid step's groups forming otherwise (docs/lifting.md item 3, stop 64)
-    mask_core_px: float = 0.0
+    # follows it (`hard` 0 object 9). 0: every masked track is tested (before stop 66). 10 on forty-seven synthetic
+    # scenes (stop 66, with the rigid step's final fits): world 3D accuracy 83.782 -> 83.817 (20 up, 25 down by at
+    # most 0.67), `hard` 0 73.20 -> 74.43, `default` 23 +1.49; static kept 96.545 -> 96.540 (docs/lifting.md item 3;
+    # at stop 64, before those fits, it cost `default` 22 5.4 points)
+    mask_core_px: float = 10.0
     # (not in the paper) a masked / ambiguous track that fails that test (and a static-region track the vote calls
     # moving that fails its own test: ten scenes, static kept 92.23 -> 92.54) is static after all when its 2D track
     # holds a static point from its query frame on and then slips (dragged along by the mover beside it): a
