@@ -109,10 +109,11 @@ def test_the_median_scale_keeps_the_2d_tracks_and_meets_the_targets():
     np.testing.assert_allclose(uv_out, uv[5:], atol=1e-6)
 
 
-def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch):
+@pytest.mark.parametrize("keyed", [False, True])
+def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch, keyed):
     """Of a group larger than ``max_fit``, the tracks in the motion's bundle adjustment are drawn with a chance in
     proportion to the frames each is seen in: the long tracks, which tie far-apart frames together, are not left to
-    their share of the tracks."""
+    their share of the tracks. The same with a fresh draw and with the tracks' fixed keys."""
     from trackingworld.optim import rigid, stage2
 
     uv, vis, X, z, poses, K, qf = _scene(rigid=True)
@@ -126,10 +127,41 @@ def test_the_bundle_adjustment_draws_tracks_by_their_frames(monkeypatch):
     monkeypatch.setattr(stage2.BAProblem, "from_tracks",
                         staticmethod(lambda uv_, d, v, *a: drawn.append(v.sum(1)) or real(uv_, d, v, *a)))
     motion = rigid.fit_motion(uv, vis, z, _lift(uv, z, poses, K), poses, K, OptimConfig(),
-                              RigidSettings(max_fit=100), np.random.default_rng(0), iters=1)
+                              RigidSettings(max_fit=100), np.random.default_rng(0), iters=1,
+                              keys=np.random.default_rng(5).random(len(vis)) if keyed else None)
     assert motion is not None
     share = (drawn[0] == T).mean()  # long tracks among the drawn: 60 * 16 / (60 * 16 + 540 * 2) = 47% of the frames
     assert 0.35 < share < 0.6
+
+
+def test_a_keyed_draw_is_weighted_and_changes_by_one_track_when_the_set_does():
+    """``_draw`` with fixed keys (Efraimidis and Spirakis): each index's chance follows its weight as numpy's
+    sequential draw does, and one index more or less in the set changes the draw by at most one index (a fresh
+    draw changes most of it), so a group's rounds fit the same tracks and a flipped membership test does not
+    redraw the whole fit."""
+    from trackingworld.optim.rigid import _draw
+
+    n, k = 400, 100
+    idx = np.arange(n)
+    weight = np.where(idx < 100, 8.0, 1.0)  # a quarter of the tracks seen 8x as often
+    counts = {"keyed": np.zeros(n), "fresh": np.zeros(n)}
+    for i in range(300):
+        keys = np.random.default_rng(i).random(n)
+        d = _draw(idx, weight, k, None, keys)
+        assert len(np.unique(d)) == k and (np.diff(d) > 0).all()
+        counts["keyed"][d] += 1
+        counts["fresh"][_draw(idx, weight, k, np.random.default_rng(1000 + i), None)] += 1
+    for c in counts.values():  # the heavy quarter holds the same share of the draws either way
+        assert 0.5 < c[:100].sum() / c.sum() < 0.8
+    assert abs(counts["keyed"][:100].mean() - counts["fresh"][:100].mean()) < 0.05 * counts["fresh"][:100].mean()
+    keys = np.random.default_rng(7).random(n)
+    base = _draw(idx, weight, k, None, keys)
+    for out in (base[0], base[-1], int(np.setdiff1d(idx, base)[0])):  # one member of the set removed
+        keep = idx != out
+        d = _draw(idx[keep], weight[keep], k, None, keys[keep])
+        assert len(np.setdiff1d(base, d)) <= 1
+    fresh = [_draw(idx[idx != j], weight[idx != j], k, np.random.default_rng(0), None) for j in (0, 399)]
+    assert len(np.setdiff1d(fresh[0], fresh[1])) > 10
 
 
 def test_the_second_pass_reaches_a_mover_whose_tracks_are_shorter_than_the_failed_seeds():
