@@ -39,7 +39,7 @@ from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
 from trackingworld.geometry import camera_depths, invert_pose, rigid_transform, transform
-from trackingworld.optim import lie, stage2
+from trackingworld.optim import lie, point_fit, stage2
 from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
 
 
@@ -201,12 +201,25 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     return order, sol.R, sol.t
 
 
-def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu"):
-    """Tracks ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` fitted as points of a rigid ``motion``
-    (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame (:func:`object_positions` places them
-    on :func:`motion_poses`); median and 80th percentile of the reprojection error ``[n,2]`` px over the solved
-    frames a track is seen in, inf where fewer than 3; median ``|log(depth / target)|`` ``[n]`` over those frames,
-    NaN where none)."""
+def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu", rows=None):
+    """Tracks ``uv [N,T,2]``, ``vis [N,T]``, ``target [N,T]`` (those of ``rows [n]``; None: all) fitted as points of
+    a rigid ``motion`` (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame
+    (:func:`object_positions` places them on :func:`motion_poses`); median and 80th percentile of the reprojection
+    error ``[n,2]`` px over the solved frames a track is seen in, inf where fewer than 3; median
+    ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
+    order, R, t = motion
+    if torch.device(device).type != "cpu" or dtype != torch.float64:
+        if rows is not None:
+            uv, vis, target = uv[rows], vis[rows], target[rows]
+        return _place_on_motion_torch(uv, vis, target, motion, K, cfg, dtype, device)
+    # the same steps compiled for the CPU (optim.point_fit): 10x faster
+    return point_fit.fit_and_score(R.detach().cpu().numpy(), t.detach().cpu().numpy(), K, uv, target, vis,
+                                   (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap),
+                                   not cfg.no_offsets, cfg.dc_space == "log", rows=rows, frames=order)
+
+
+def _place_on_motion_torch(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu"):
+    """:func:`place_on_motion` in torch, on any device (stage 2's :func:`~trackingworld.optim.stage2.fit_points`)."""
     order, R, t = motion
     n = len(vis)
     pa = stage2.BAProblem.from_tracks(uv[:, order], target[:, order], vis[:, order], K, cfg, dtype, device)
@@ -249,6 +262,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     group ``[N]`` (-1: none; the group found first, where groups were joined) and counts."""
     out = xyz.copy()
     N, T = vis.shape
+    target = np.ascontiguousarray(target, np.float64)  # once, not at each membership test (optim.point_fit)
     z = camera_depths(xyz, poses)
     rng = np.random.default_rng(s.rng_seed)
     keys = rng.random(N) if s.keyed_draw else None
@@ -260,7 +274,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
 
     def explained(idx, motion):
         """(bool [len(idx)]: the tracks ``idx`` the motion explains; the points ``[k,3]`` of those k on it)"""
-        P, med, dz = place_on_motion(uv[idx], vis[idx], target[idx], motion, K, cfg, dtype, device)
+        P, med, dz = place_on_motion(uv, vis, target, motion, K, cfg, dtype, device, rows=idx)
         with np.errstate(invalid="ignore"):  # NaN: a track seen in no solved frame, not explained
             ok = (med[:, 0] <= s.max_px) & (med[:, 1] <= s.max_px80) & (dz <= s.depth_tol)
         return ok, P[ok]

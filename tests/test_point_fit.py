@@ -1,0 +1,66 @@
+"""optim.point_fit: the compiled membership test of the rigid step gives the torch reference's points and scores."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from trackingworld.config import OptimConfig
+from trackingworld.geometry import intrinsics_matrix
+from trackingworld.optim import rigid
+from trackingworld.optim.point_fit import fit_and_score
+
+
+def _problem(seed: int = 0, n: int = 300, T: int = 12):
+    """Tracks of points seen by T cameras (camera-from-object R, t), with pixel noise, a biased and noisy depth
+    target, a third of them off the motion (outliers), and some seen in 0, 1 or 2 frames."""
+    rng = np.random.default_rng(seed)
+    K = intrinsics_matrix(300.0, 290.0, 160.0, 120.0)
+    R = Rotation.from_rotvec(rng.normal(0, 0.1, (T, 3))).as_matrix()
+    t = np.c_[rng.normal(0, 0.2, (T, 2)), 3 + rng.normal(0, 0.2, T)]
+    X = rng.uniform(-0.5, 0.5, (n, 3))
+    Y = np.einsum("tij,nj->nti", R, X) + t[None]
+    Y[: n // 3] += rng.normal(0, 0.05, (n // 3, T, 3))  # not on the motion
+    uv = np.stack([K[0, 0] * Y[..., 0] / Y[..., 2] + K[0, 2], K[1, 1] * Y[..., 1] / Y[..., 2] + K[1, 2]], -1)
+    uv += rng.normal(0, 0.3, uv.shape)
+    target = Y[..., 2] * 1.03 * np.exp(rng.normal(0, 0.02, Y.shape[:2]))
+    vis = rng.random((n, T)) < 0.8
+    vis[-3:] = False
+    vis[-3, 0] = vis[-2, :2] = True  # seen in 1 and 2 frames (no quantiles), the last in none
+    return uv, vis, target, K, R, t
+
+
+@pytest.mark.parametrize("offsets,space", [(True, "log"), (True, "metres"), (False, "log")])
+def test_the_compiled_fit_gives_the_torch_reference(offsets, space):
+    uv, vis, target, K, R, t = _problem()
+    T = vis.shape[1]
+    frames = np.array([3, 0, 5, 7, 1, 2, 4, 6, 8, 9, 11])  # a motion solved in all frames but one, its own order
+    motion = (frames, torch.as_tensor(R[frames]), torch.as_tensor(t[frames]))
+    cfg = replace(OptimConfig(), no_offsets=not offsets, dc_space=space, lambda_asap=4.0)
+    rows = np.r_[np.arange(0, len(vis), 2), len(vis) - 3, len(vis) - 2, len(vis) - 1]
+    P, q, dz = rigid.place_on_motion(uv, vis, target, motion, K, cfg, rows=rows)
+    Pr, qr, dzr = rigid._place_on_motion_torch(uv[rows], vis[rows], target[rows], motion, K, cfg)
+    assert T == 12 and len(P) == len(rows)
+    np.testing.assert_allclose(P, Pr, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(np.isinf(q), np.isinf(qr))
+    np.testing.assert_allclose(q[np.isfinite(q)], qr[np.isfinite(qr)], rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(np.isnan(dz), np.isnan(dzr))
+    np.testing.assert_allclose(dz[~np.isnan(dz)], dzr[~np.isnan(dzr)], rtol=1e-9, atol=1e-12)
+    # the test itself separates the tracks on the motion from those off it
+    ok = (q[:, 0] <= 0.6) & (q[:, 1] <= 1.5)
+    on = np.arange(len(vis))[rows] >= len(vis) // 3
+    assert ok[on].mean() > 0.5 and ok[~on].mean() < 0.1
+    assert np.isinf(q[-3:]).all() and np.isnan(dz[-1]) and np.isfinite(dz[-3:-1]).all()
+
+
+def test_no_steps_leave_the_mean_back_projection():
+    uv, vis, target, K, R, t = _problem(seed=1, n=40)
+    P, _, _ = fit_and_score(R, t, K, uv, target, vis, (1.0, 1.0, 5.0), iters=0)
+    i = 5
+    f = np.flatnonzero(vis[i])
+    ray = np.c_[(uv[i, f, 0] - K[0, 2]) / K[0, 0], (uv[i, f, 1] - K[1, 2]) / K[1, 1], np.ones(len(f))]
+    c = ray * target[i, f, None]
+    X = np.einsum("fji,fj->fi", R[f], c - t[f])  # R^T (c - t)
+    np.testing.assert_allclose(P[i], X.mean(0), atol=1e-12)
