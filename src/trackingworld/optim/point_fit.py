@@ -8,7 +8,7 @@ step is some forty operations over ``[M,3,3]`` arrays of all the observations, w
 memory (0.5 us per observation and step on the 2-core machine); here each point's few observations stay in cache
 through all its steps. Torch has no way to fuse such a loop on a CPU without a C++ compiler at run time
 (``torch.compile``), hence numba; the torch functions stay the reference and what a CUDA device runs
-(``tests/test_point_fit.py`` holds the two to the same results).
+(``tests/test_compiled.py`` holds the two to the same results).
 
 Conventions: ``R [F,3,3]``, ``t [F,3]`` camera-from-object (or world-to-camera) rotations and translations of the
 solved frames, camera = R X + t (OpenCV axes); pixels x right / y down; depths metres along the camera's z.

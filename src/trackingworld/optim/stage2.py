@@ -40,7 +40,7 @@ import torch
 
 from trackingworld.config import OptimConfig, offset_percentile
 from trackingworld.geometry import transform, unproject
-from trackingworld.optim import lie
+from trackingworld.optim import ba_blocks, lie
 from trackingworld.optim.linalg import pcg, sparse_csr
 
 
@@ -206,6 +206,8 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
     """Gauss-Newton blocks (Hcc, Hxx, Hcx, gc, gx) of the IRLS-weighted problem; with ``points_only`` the pose
     blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs. With
     ``focal`` a sixth item holds the blocks of phi (:class:`_FocalBlocks`)."""
+    if not focal and R.device.type == "cpu" and R.dtype == torch.float64:  # the same, compiled (optim.ba_blocks)
+        return _linearize_compiled(R, t, X, p, points_only)
     Y, r_uv, r_d = residuals(R, t, X, p)
     M = Y.shape[0]
     w_uv = torch.ones_like(r_d)
@@ -242,6 +244,19 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
         torch.zeros(T, 6, dtype=Y.dtype, device=Y.device).index_add_(0, p.fr, _mv(Jc, WJf)),
         torch.zeros(N, 3, dtype=Y.dtype, device=Y.device).index_add_(0, p.pt, _mv(Jx, WJf)))
     return Hcc, Hxx, Hcx, gc, gx, fb
+
+
+def _linearize_compiled(R, t, X, p: BAProblem, points_only: bool):
+    """:func:`_linearize` (no focal unknown) by :func:`trackingworld.optim.ba_blocks.linearize`, on CPU float64
+    tensors."""
+    num = lambda a: a.detach().numpy()  # noqa: E731
+    K = num(p.K)
+    blocks = ba_blocks.linearize(num(R), num(t), num(X), num(p.pt), num(p.fr), num(p.uv), num(p.depth), K,
+                                 (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
+                                 None if p.kernel_focal is None else float(p.kernel_focal),
+                                 None if p.dc_weight is None else num(p.dc_weight), points_only)
+    Hcc, Hxx, Hcx, gc, gx = (torch.from_numpy(b) for b in blocks)
+    return (None, Hxx, None, None, gx) if points_only else (Hcc, Hxx, Hcx, gc, gx)
 
 
 def _mv(J: torch.Tensor, r: torch.Tensor) -> torch.Tensor:

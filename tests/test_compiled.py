@@ -1,4 +1,4 @@
-"""optim.point_fit: the compiled membership test of the rigid step gives the torch reference's points and scores."""
+"""optim.point_fit and optim.ba_blocks: the compiled CPU kernels give the torch reference's numbers."""
 
 from dataclasses import replace
 
@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
-from trackingworld.optim import rigid
+from trackingworld.optim import rigid, stage2
 from trackingworld.optim.point_fit import fit_and_score
 
 
@@ -64,3 +64,25 @@ def test_no_steps_leave_the_mean_back_projection():
     c = ray * target[i, f, None]
     X = np.einsum("fji,fj->fi", R[f], c - t[f])  # R^T (c - t)
     np.testing.assert_allclose(P[i], X.mean(0), atol=1e-12)
+
+
+@pytest.mark.parametrize("offsets,space,weighted", [(True, "log", False), (True, "metres", True), (False, "log", True)])
+def test_the_compiled_blocks_give_the_torch_reference(offsets, space, weighted):
+    uv, vis, target, K, R, t = _problem(seed=2, n=200)
+    cfg = replace(OptimConfig(), no_offsets=not offsets, dc_space=space)
+    p = stage2.BAProblem.from_tracks(uv, target, vis, K, cfg, torch.float64, "cpu")
+    if weighted:
+        p = replace(p, dc_weight=torch.rand(len(p.pt), dtype=torch.float64, generator=torch.Generator().manual_seed(0)))
+    Rt, tt = torch.as_tensor(R), torch.as_tensor(t)
+    X = stage2.init_points(Rt, tt, p) + 0.01  # off the optimum: the kernels' weights below 1 somewhere
+    ref = stage2._linearize(Rt, tt, X, p, focal=True)[:5]  # the focal unknown keeps the torch path
+    got = stage2._linearize(Rt, tt, X, p)
+    for a, b in zip(got, ref):
+        scale = b.abs().max()
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-12 * float(scale))
+    _, Hxx, _, _, gx = stage2._linearize(Rt, tt, X, p, points_only=True)
+    torch.testing.assert_close(Hxx, ref[1], rtol=0, atol=1e-12 * float(ref[1].abs().max()))
+    torch.testing.assert_close(gx, ref[4], rtol=0, atol=1e-12 * float(ref[4].abs().max()))
+    # the Huber weights matter (offsets on) or are all 1 (off)
+    plain = stage2._linearize(Rt, tt, X, replace(p, offsets=False))[1]
+    assert offsets == bool((got[1] != plain).any())

@@ -1,0 +1,120 @@
+"""The Gauss-Newton blocks of stage 2's bundle adjustment compiled for the CPU (numba).
+
+:func:`trackingworld.optim.stage2._linearize` forms, for every observation, the Jacobians of its pixel and depth
+residuals with respect to its frame's pose (``[3,6]``) and its point (``[3,3]``), weighs them by the Huber kernels'
+IRLS weights and sums them into the pose blocks ``Hcc [T,6,6]``, ``gc [T,6]`` and the point blocks ``Hxx [N,3,3]``,
+``gx [N,3]``, keeping the coupling ``Hcx [M,6,3]`` of each observation. In torch that is some sixty operations over
+``[M,3,6]`` arrays, which a CPU runs at the speed of its memory; the rigid step's hundred-odd fits of a few hundred
+points each spent most of their time there. Here one loop keeps each observation's numbers in registers. Torch
+cannot fuse such a loop on a CPU without a C++ compiler at run time (``torch.compile``), hence numba. The torch
+function stays the reference and what a CUDA device (or the focal-length unknown) runs; ``tests/test_compiled.py``
+holds the two to the same blocks.
+
+Conventions as :mod:`trackingworld.optim.stage2`: world-to-camera ``R [T,3,3]``, ``t [T,3]`` (camera = R X + t,
+OpenCV axes), points ``X [N,3]`` metres, observations ``pt, fr [M]``, pixels ``uv [M,2]`` (x right, y down),
+depth targets ``depth [M]`` metres; a pose's update is a left perturbation ``(rotation, translation)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, error_model="numpy")
+def _blocks(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc, points_only):
+    """The blocks (see :func:`linearize`; ``k`` = fx, fy, cx, cy, the kernel's focal; ``weights`` = lambda_ba,
+    lambda_dc, lambda_asap; ``dcw [M]`` the depth term's factor per observation)."""
+    fx, fy, cx, cy, kf = k[0], k[1], k[2], k[3], k[4]
+    lba, ldc, lasap = weights[0], weights[1], weights[2]
+    M, T, N = len(pt), len(R), len(X)
+    Hxx = np.zeros((N, 3, 3))
+    gx = np.zeros((N, 3))
+    Hcc = np.zeros((0 if points_only else T, 6, 6))
+    gc = np.zeros((0 if points_only else T, 6))
+    Hcx = np.zeros((0 if points_only else M, 6, 3))
+    JY = np.zeros((3, 3))  # d residual / d camera point
+    Jx = np.zeros((3, 3))  # ... / d point
+    Jc = np.zeros((3, 6))  # ... / d pose
+    W = np.zeros(3)
+    r = np.zeros(3)
+    for m in range(M):
+        i, f = pt[m], fr[m]
+        y0 = R[f, 0, 0] * X[i, 0] + R[f, 0, 1] * X[i, 1] + R[f, 0, 2] * X[i, 2] + t[f, 0]
+        y1 = R[f, 1, 0] * X[i, 0] + R[f, 1, 1] * X[i, 1] + R[f, 1, 2] * X[i, 2] + t[f, 1]
+        y2 = R[f, 2, 0] * X[i, 0] + R[f, 2, 1] * X[i, 1] + R[f, 2, 2] * X[i, 2] + t[f, 2]
+        z = max(y2, 1e-3)
+        r[0] = fx * y0 / z + cx - uv[m, 0]
+        r[1] = fy * y1 / z + cy - uv[m, 1]
+        if log_dc:
+            r[2] = math.log(z) - math.log(max(depth[m], 1e-3))
+            ds = z
+        else:
+            r[2] = y2 - depth[m]
+            ds = 1.0
+        w_uv = 1.0
+        w_d = 1.0
+        if offsets:  # the Huber kernels' IRLS weights, thresholds from the eliminated offsets (BAProblem.thresholds)
+            c_uv = lasap * z / (2 * lba * kf)
+            c_d = lasap * ds / (2 * max(ldc, 1e-12)) / max(dcw[m], 1e-12)
+            w_uv = min(c_uv / max(math.sqrt(r[0] * r[0] + r[1] * r[1]), 1e-12), 1.0)
+            w_d = min(c_d / max(abs(r[2]), 1e-12), 1.0)
+        W[0] = lba * w_uv / M
+        W[1] = W[0]
+        W[2] = ldc * dcw[m] * w_d / M
+        JY[0, 0] = fx / z
+        JY[0, 2] = -fx * y0 / (z * z)
+        JY[1, 1] = fy / z
+        JY[1, 2] = -fy * y1 / (z * z)
+        JY[2, 2] = 1.0 / ds
+        for a in range(3):
+            for b in range(3):
+                Jx[a, b] = JY[a, 0] * R[f, 0, b] + JY[a, 1] * R[f, 1, b] + JY[a, 2] * R[f, 2, b]
+        for a in range(3):
+            gx[i, 0] += Jx[a, 0] * W[a] * r[a]
+            gx[i, 1] += Jx[a, 1] * W[a] * r[a]
+            gx[i, 2] += Jx[a, 2] * W[a] * r[a]
+            for b in range(3):
+                wj = W[a] * Jx[a, b]
+                for c in range(3):
+                    Hxx[i, b, c] += Jx[a, c] * wj
+        if points_only:
+            continue
+        # d Y / d pose = [-[Y]x, I] (lie.pose_jacobian)
+        for a in range(3):
+            Jc[a, 0] = -JY[a, 1] * y2 + JY[a, 2] * y1
+            Jc[a, 1] = JY[a, 0] * y2 - JY[a, 2] * y0
+            Jc[a, 2] = -JY[a, 0] * y1 + JY[a, 1] * y0
+            Jc[a, 3] = JY[a, 0]
+            Jc[a, 4] = JY[a, 1]
+            Jc[a, 5] = JY[a, 2]
+        for a in range(3):
+            wr = W[a] * r[a]
+            for b in range(6):
+                gc[f, b] += Jc[a, b] * wr
+                wj = W[a] * Jc[a, b]
+                for c in range(6):
+                    Hcc[f, b, c] += Jc[a, c] * wj
+                for c in range(3):
+                    Hcx[m, b, c] += Jx[a, c] * wj
+    return Hcc, Hxx, Hcx, gc, gx
+
+
+def linearize(R: np.ndarray, t: np.ndarray, X: np.ndarray, pt: np.ndarray, fr: np.ndarray, uv: np.ndarray,
+              depth: np.ndarray, K: np.ndarray, weights: tuple[float, float, float], offsets: bool = True,
+              log_dc: bool = True, kernel_focal: float | None = None, dc_weight: np.ndarray | None = None,
+              points_only: bool = False):
+    """Gauss-Newton blocks ``(Hcc [T,6,6], Hxx [N,3,3], Hcx [M,6,3], gc [T,6], gx [N,3])`` of the IRLS-weighted
+    stage-2 objective at poses ``R, t`` and points ``X`` (float64 arrays; ``weights`` = lambda_ba, lambda_dc,
+    lambda_asap; ``offsets``, ``log_dc``, ``kernel_focal`` and ``dc_weight [M]`` as in
+    :class:`trackingworld.optim.stage2.BAProblem`). With ``points_only`` the pose blocks are empty (first
+    dimension 0): what a fit of the points under fixed poses needs."""
+    fxy = math.sqrt(K[0, 0] * K[1, 1]) if kernel_focal is None else kernel_focal
+    k = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], fxy], np.float64)
+    dcw = np.ones(len(pt)) if dc_weight is None else np.ascontiguousarray(dc_weight, np.float64)
+    f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731  (no copy when it already is)
+    i64 = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
+    return _blocks(f64(R), f64(t), f64(X), i64(pt), i64(fr), f64(uv), f64(depth), dcw, k, f64(weights),
+                   bool(offsets), bool(log_dc), bool(points_only))
