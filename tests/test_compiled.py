@@ -77,7 +77,7 @@ def test_the_compiled_blocks_give_the_torch_reference(offsets, space, weighted):
     X = stage2.init_points(Rt, tt, p) + 0.01  # off the optimum: the kernels' weights below 1 somewhere
     ref = stage2._linearize(Rt, tt, X, p, focal=True)[:5]  # the focal unknown keeps the torch path
     got = stage2._linearize(Rt, tt, X, p)
-    for a, b in zip(got, ref):
+    for a, b in zip(got, ref, strict=True):
         scale = b.abs().max()
         torch.testing.assert_close(a, b, rtol=0, atol=1e-12 * float(scale))
     _, Hxx, _, _, gx = stage2._linearize(Rt, tt, X, p, points_only=True)
