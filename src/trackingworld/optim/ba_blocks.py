@@ -17,10 +17,13 @@ depth targets ``depth [M]`` metres; a pose's update is a left perturbation ``(ro
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
 from numba import njit
+from scipy.linalg import cho_factor, cho_solve
+from threadpoolctl import ThreadpoolController
 
 
 @njit(cache=True, error_model="numpy")
@@ -118,3 +121,146 @@ def linearize(R: np.ndarray, t: np.ndarray, X: np.ndarray, pt: np.ndarray, fr: n
     i64 = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
     return _blocks(f64(R), f64(t), f64(X), i64(pt), i64(fr), f64(uv), f64(depth), dcw, k, f64(weights),
                    bool(offsets), bool(log_dc), bool(points_only))
+
+
+@njit(cache=True, error_model="numpy")
+def _chol3(H, out):
+    """``out [3,3]`` <- the lower Cholesky factor of ``H [3,3]``; False where H is not positive definite."""
+    out[:] = 0.0
+    if not H[0, 0] > 0:
+        return False
+    out[0, 0] = math.sqrt(H[0, 0])
+    out[1, 0] = H[1, 0] / out[0, 0]
+    out[2, 0] = H[2, 0] / out[0, 0]
+    d = H[1, 1] - out[1, 0] ** 2
+    if not d > 0:
+        return False
+    out[1, 1] = math.sqrt(d)
+    out[2, 1] = (H[2, 1] - out[2, 0] * out[1, 0]) / out[1, 1]
+    d = H[2, 2] - out[2, 0] ** 2 - out[2, 1] ** 2
+    if not d > 0:
+        return False
+    out[2, 2] = math.sqrt(d)
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _chol3_solve(L, b, out):
+    """``out [3]`` <- ``(L L^T)^-1 b`` for a lower triangular ``L [3,3]``."""
+    y0 = b[0] / L[0, 0]
+    y1 = (b[1] - L[1, 0] * y0) / L[1, 1]
+    y2 = (b[2] - L[2, 0] * y0 - L[2, 1] * y1) / L[2, 2]
+    out[2] = y2 / L[2, 2]
+    out[1] = (y1 - L[2, 1] * out[2]) / L[1, 1]
+    out[0] = (y0 - L[1, 0] * out[1] - L[2, 0] * out[2]) / L[0, 0]
+
+
+@njit(cache=True, error_model="numpy")
+def _damped(H, mu, out):
+    """``out`` <- the square ``H`` damped as :func:`trackingworld.optim.stage2._damp`: ``mu`` times its diagonal
+    plus 1e-12 times (1 + the diagonal's largest magnitude) added to the diagonal."""
+    top = 0.0
+    for i in range(H.shape[0]):
+        top = max(top, abs(H[i, i]))
+    out[:] = H
+    for i in range(H.shape[0]):
+        out[i, i] += mu * H[i, i] + 1e-12 * (1 + top)
+
+
+@njit(cache=True, error_model="numpy")
+def _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu, free):
+    """The points eliminated from one damped step (see :func:`schur_reduce`)."""
+    T, N, M = len(Hcc), len(Hxx), len(pt)
+    L = np.zeros((N, 3, 3))
+    y = np.zeros((N, 3))
+    Hd = np.zeros((3, 3))
+    for i in range(N):
+        _damped(Hxx[i], mu, Hd)
+        if not _chol3(Hd, L[i]):
+            return False, np.zeros((0, 0)), np.zeros((0, 0)), L, y, np.zeros((0, 6))
+        _chol3_solve(L[i], gx[i], y[i])
+    # B [3N, 6T]: each observation's G^T = L^-1 Hcx^T at (its point, its frame), so that B^T B = Hcx Hxx^-1 Hcx^T
+    B = np.zeros((3 * N, 6 * T))
+    rhs = np.zeros((T, 6))
+    for m in range(M):
+        i, f = pt[m], fr[m]
+        for k in range(6):
+            g0 = Hcx[m, k, 0] / L[i, 0, 0]
+            g1 = (Hcx[m, k, 1] - L[i, 1, 0] * g0) / L[i, 1, 1]
+            g2 = (Hcx[m, k, 2] - L[i, 2, 0] * g0 - L[i, 2, 1] * g1) / L[i, 2, 2]
+            B[3 * i, 6 * f + k] = g0
+            B[3 * i + 1, 6 * f + k] = g1
+            B[3 * i + 2, 6 * f + k] = g2
+            rhs[f, k] += Hcx[m, k, 0] * y[i, 0] + Hcx[m, k, 1] * y[i, 1] + Hcx[m, k, 2] * y[i, 2]
+    Hd6 = np.zeros((6, 6))
+    D = np.zeros((6 * T, 6 * T))
+    for f in range(T):
+        _damped(Hcc[f], mu, Hd6)
+        for a in range(6):
+            rhs[f, a] = -(gc[f, a] - rhs[f, a]) if free[f] else 0.0
+            for b in range(6):
+                D[6 * f + a, 6 * f + b] = Hd6[a, b]
+    return True, B, D, L, y, rhs
+
+
+@njit(cache=True, error_model="numpy")
+def _back(L, y, Hcx, dc, pt, fr):
+    """The points' step ``dx [N,3]`` given the poses' ``dc [T,6]``: ``-Hxx^-1 (gx + sum Hcx^T dc)`` (``y`` =
+    ``Hxx^-1 gx``)."""
+    N = len(L)
+    back = np.zeros((N, 3))
+    for m in range(len(pt)):
+        i, f = pt[m], fr[m]
+        for j in range(3):
+            s = 0.0
+            for k in range(6):
+                s += Hcx[m, k, j] * dc[f, k]
+            back[i, j] += s
+    dx = np.zeros((N, 3))
+    tmp = np.zeros(3)
+    for i in range(N):
+        _chol3_solve(L[i], back[i], tmp)
+        for j in range(3):
+            dx[i, j] = -(y[i, j] + tmp[j])
+    return dx
+
+
+def schur_step(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu: float, free: np.ndarray):
+    """One damped Gauss-Newton step of :func:`trackingworld.optim.stage2._schur_step` (no focal unknown), the
+    reduced pose system formed densely: ``(dc [T,6], dx [N,3])``, or None where a damped block is not positive
+    definite (the caller's eigen-decomposition and PCG handle those). Float64 arrays as :func:`linearize` gives
+    them, ``pt, fr [M]`` int64; ``free [T]`` bool, the frames that move. The reduced system is ``D - B^T B``
+    (``D`` the damped pose blocks, ``B`` the points' couplings whitened by their blocks' Cholesky factors), its
+    product left to BLAS, which no hand-written loop matches."""
+    ok, B, A, L, y, rhs = _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, float(mu), free)
+    if not ok:
+        return None
+    with _blas_threads(1 if B.shape[0] * B.shape[1] ** 2 < SMALL_PRODUCT else None):
+        A -= B.T @ B
+        fixed = np.repeat(~free, 6)
+        A[fixed] = 0.0
+        A[:, fixed] = 0.0
+        A[fixed, fixed] = 1.0
+        try:
+            c = cho_factor(0.5 * (A + A.T), lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            return None
+        dc = cho_solve(c, rhs.reshape(-1), check_finite=False).reshape(-1, 6)
+    return dc, _back(L, y, Hcx, dc, pt, fr)
+
+
+# below this many multiply-adds a reduced system's product and factorisation run on one BLAS thread: waking
+# OpenBLAS's threads for each cost more than they saved (stop 69, 2-core machine, a rigid fit's 800 points x 30
+# frames, 7.8e7: the whole step 13.7 ms on 2 threads, 4.9 ms on one)
+SMALL_PRODUCT = 2e8
+_controller = None
+
+
+def _blas_threads(n: int | None):
+    """A context in which BLAS (numpy's and scipy's OpenBLAS) runs on at most ``n`` threads; None: unchanged."""
+    global _controller
+    if n is None:
+        return contextlib.nullcontext()
+    if _controller is None:
+        _controller = ThreadpoolController()
+    return _controller.limit(limits=n, user_api="blas")

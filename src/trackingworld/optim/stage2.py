@@ -439,13 +439,23 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by a dense Cholesky
     solve where the reduced system is small (:data:`DENSE_POSE_FLOPS`), else by PCG.
     Returns (dc [T,6], dx [N,3], dphi float)."""
+    dense = 3 * p.n_points * (6 * p.n_frames) ** 2 <= DENSE_POSE_FLOPS and 3 * p.n_points * 6 * p.n_frames <= \
+        DENSE_POSE_ENTRIES
+    if fb is None and dense and Hcc.device.type == "cpu" and Hcc.dtype == torch.float64:
+        # the same step compiled (optim.ba_blocks), with Cholesky factors of the point blocks: None where one is
+        # not positive definite, which the eigen-decomposition below handles
+        num = lambda a: a.detach().numpy()  # noqa: E731
+        out = ba_blocks.schur_step(num(Hcc), num(Hxx), num(Hcx), num(gc), num(gx), num(p.pt), num(p.fr), mu,
+                                   num(free))
+        if out is not None:
+            return torch.from_numpy(out[0]), torch.from_numpy(out[1]), 0.0
     # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
     # singular, e.g. a point seen along one ray without depth consistency)
     lam, V = torch.linalg.eigh(_damp(Hxx, mu))
     L = V * lam.clamp_min(1e-300).rsqrt()[:, None, :]
     Hxx_inv = L @ L.transpose(1, 2)
     Hcc_d = _damp(Hcc, mu)
-    T, N = p.n_frames, p.n_points
+    T = p.n_frames
     fmask = free[:, None].to(Hcc.dtype)
     if fb is None:  # no focal unknown: zero couplings keep one code path
         fb = _FocalBlocks(torch.zeros((), dtype=Hcc.dtype, device=Hcc.device), torch.zeros_like(Hcc[0, 0, 0]),
@@ -464,7 +474,7 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     if use_f:
         rhs[T, 0] = -(fb.gf - (fb.Hxf * y).sum())
     sol = None
-    if 3 * N * (6 * T) ** 2 <= DENSE_POSE_FLOPS and 3 * N * 6 * T <= DENSE_POSE_ENTRIES:
+    if dense:
         sol = _dense_pose_solve(G, Hcc_d, fb.Hcf, Hff_d, w, rhs, p, free, use_f)
     if sol is None:
         sol = _pcg_pose_solve(G, Hcc, Hcc_d, Hxx_inv, fb, Hff_d, w, rhs, p, free, use_f)
