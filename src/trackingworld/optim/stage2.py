@@ -81,11 +81,6 @@ class BAProblem:
             0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap, not cfg.no_offsets,
             cfg.dc_space == "log")
 
-    def to(self, dtype) -> BAProblem:
-        """The same problem with its pixels, depths, K and depth-term factors in ``dtype``."""
-        return replace(self, uv=self.uv.to(dtype), depth=self.depth.to(dtype), K=self.K.to(dtype),
-                       dc_weight=None if self.dc_weight is None else self.dc_weight.to(dtype))
-
     def subset(self, keep: torch.Tensor) -> BAProblem:
         """The same problem with only the observations ``keep`` [M] bool (points and frames numbered as before)."""
         return replace(self, pt=self.pt[keep], fr=self.fr[keep], uv=self.uv[keep], depth=self.depth[keep],
@@ -645,11 +640,7 @@ def _sorted_by_point(v: np.ndarray, pt: np.ndarray, n: int) -> tuple[np.ndarray,
 
 def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
     """Best static point ``[N,3]`` of every track with the poses held fixed (Gauss-Newton on the same
-    objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment. On a CPU
-    the steps run in float64 whatever the dtype (the compiled blocks of :mod:`trackingworld.optim.ba_blocks`, faster
-    than float32 in torch), the points returned in R's dtype."""
-    if R.device.type == "cpu" and R.dtype != torch.float64:
-        return fit_points(R.double(), t.double(), p.to(torch.float64), iters).to(R.dtype)
+    objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment."""
     X = init_points(R, t, p)
     eye = torch.eye(3, dtype=X.dtype, device=X.device)
     for _ in range(iters):
