@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
-from trackingworld.optim import rigid, stage2
+from trackingworld.optim import ba_blocks, rigid, stage2
 from trackingworld.optim.point_fit import fit_and_score
 
 
@@ -108,3 +108,18 @@ def test_the_compiled_step_gives_the_torch_reference(monkeypatch):
     sol = stage2.solve_lm(Rt, tt, X, p, iters=10)
     assert abs(sol.cost - ref.cost) <= 1e-9 * ref.cost
     torch.testing.assert_close(sol.t, ref.t, rtol=0, atol=1e-9)
+
+
+
+def test_a_block_cholesky_refuses_is_factored_by_its_eigen_decomposition():
+    # the Schur step's fallback for a point block that is not positive definite in floating point: its inverse from
+    # the eigen-decomposition, as the torch step does for every block
+    H = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    out = np.zeros((3, 3))
+    assert ba_blocks._chol3(H, out) and not ba_blocks._chol3(np.diag([1.0, 1.0, -1e-18]), out)
+    lam, V = np.linalg.eigh(H)
+    b, x = np.array([0.3, -1.0, 2.0]), np.zeros(3)
+    ba_blocks._apply(V / np.sqrt(lam), 1, b, x)
+    np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-12)
+    ba_blocks._apply(np.linalg.cholesky(H), 0, b, x)
+    np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-12)

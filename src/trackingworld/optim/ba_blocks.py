@@ -17,10 +17,10 @@ depth targets ``depth [M]`` metres; a pose's update is a left perturbation ``(ro
 
 from __future__ import annotations
 
-import contextlib
 import math
 
 import numpy as np
+import torch
 from numba import njit
 from scipy.linalg import cho_factor, cho_solve
 from threadpoolctl import ThreadpoolController
@@ -168,26 +168,55 @@ def _damped(H, mu, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _apply(L, kind, b, out):
+    """``out [3]`` <- ``Hxx^-1 b`` for a point block factored by :func:`_reduce` (``kind`` 0: ``L`` its Cholesky factor;
+    1: ``L`` = V lam^-1/2 of its eigen-decomposition, so that the inverse is ``L L^T``)."""
+    if kind == 0:
+        _chol3_solve(L, b, out)
+        return
+    for j in range(3):
+        out[j] = 0.0
+    for c in range(3):
+        s = L[0, c] * b[0] + L[1, c] * b[1] + L[2, c] * b[2]
+        for j in range(3):
+            out[j] += L[j, c] * s
+
+
+@njit(cache=True, error_model="numpy")
 def _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu, free):
-    """The points eliminated from one damped step (see :func:`schur_reduce`)."""
+    """The points eliminated from one damped step (see :func:`schur_step`). A point block that Cholesky finds not
+    positive definite (a point seen along one ray without the depth term) is factored by its eigen-decomposition,
+    its eigenvalues floored at 1e-300, as :func:`trackingworld.optim.stage2._schur_step` does for every block."""
     T, N, M = len(Hcc), len(Hxx), len(pt)
     L = np.zeros((N, 3, 3))
+    kind = np.zeros(N, np.int64)
     y = np.zeros((N, 3))
     Hd = np.zeros((3, 3))
     for i in range(N):
         _damped(Hxx[i], mu, Hd)
         if not _chol3(Hd, L[i]):
-            return False, np.zeros((0, 0)), np.zeros((0, 0)), L, y, np.zeros((0, 6))
-        _chol3_solve(L[i], gx[i], y[i])
-    # B [3N, 6T]: each observation's G^T = L^-1 Hcx^T at (its point, its frame), so that B^T B = Hcx Hxx^-1 Hcx^T
+            lam, V = np.linalg.eigh(Hd)
+            kind[i] = 1
+            for c in range(3):
+                s = 1.0 / math.sqrt(max(lam[c], 1e-300))
+                for j in range(3):
+                    L[i, j, c] = V[j, c] * s
+        _apply(L[i], kind[i], gx[i], y[i])
+    # B [3N, 6T]: each observation's block at (its point, its frame) such that B^T B = sum Hcx Hxx^-1 Hcx^T:
+    # L^-1 Hcx^T for a Cholesky factor, L^T Hcx^T for an eigen one
     B = np.zeros((3 * N, 6 * T))
     rhs = np.zeros((T, 6))
     for m in range(M):
         i, f = pt[m], fr[m]
         for k in range(6):
-            g0 = Hcx[m, k, 0] / L[i, 0, 0]
-            g1 = (Hcx[m, k, 1] - L[i, 1, 0] * g0) / L[i, 1, 1]
-            g2 = (Hcx[m, k, 2] - L[i, 2, 0] * g0 - L[i, 2, 1] * g1) / L[i, 2, 2]
+            if kind[i] == 0:
+                g0 = Hcx[m, k, 0] / L[i, 0, 0]
+                g1 = (Hcx[m, k, 1] - L[i, 1, 0] * g0) / L[i, 1, 1]
+                g2 = (Hcx[m, k, 2] - L[i, 2, 0] * g0 - L[i, 2, 1] * g1) / L[i, 2, 2]
+            else:
+                g0 = L[i, 0, 0] * Hcx[m, k, 0] + L[i, 1, 0] * Hcx[m, k, 1] + L[i, 2, 0] * Hcx[m, k, 2]
+                g1 = L[i, 0, 1] * Hcx[m, k, 0] + L[i, 1, 1] * Hcx[m, k, 1] + L[i, 2, 1] * Hcx[m, k, 2]
+                g2 = L[i, 0, 2] * Hcx[m, k, 0] + L[i, 1, 2] * Hcx[m, k, 1] + L[i, 2, 2] * Hcx[m, k, 2]
             B[3 * i, 6 * f + k] = g0
             B[3 * i + 1, 6 * f + k] = g1
             B[3 * i + 2, 6 * f + k] = g2
@@ -200,11 +229,11 @@ def _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu, free):
             rhs[f, a] = -(gc[f, a] - rhs[f, a]) if free[f] else 0.0
             for b in range(6):
                 D[6 * f + a, 6 * f + b] = Hd6[a, b]
-    return True, B, D, L, y, rhs
+    return B, D, L, kind, y, rhs
 
 
 @njit(cache=True, error_model="numpy")
-def _back(L, y, Hcx, dc, pt, fr):
+def _back(L, kind, y, Hcx, dc, pt, fr):
     """The points' step ``dx [N,3]`` given the poses' ``dc [T,6]``: ``-Hxx^-1 (gx + sum Hcx^T dc)`` (``y`` =
     ``Hxx^-1 gx``)."""
     N = len(L)
@@ -219,7 +248,7 @@ def _back(L, y, Hcx, dc, pt, fr):
     dx = np.zeros((N, 3))
     tmp = np.zeros(3)
     for i in range(N):
-        _chol3_solve(L[i], back[i], tmp)
+        _apply(L[i], kind[i], back[i], tmp)
         for j in range(3):
             dx[i, j] = -(y[i, j] + tmp[j])
     return dx
@@ -227,16 +256,18 @@ def _back(L, y, Hcx, dc, pt, fr):
 
 def schur_step(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu: float, free: np.ndarray):
     """One damped Gauss-Newton step of :func:`trackingworld.optim.stage2._schur_step` (no focal unknown), the
-    reduced pose system formed densely: ``(dc [T,6], dx [N,3])``, or None where a damped block is not positive
-    definite (the caller's eigen-decomposition and PCG handle those). Float64 arrays as :func:`linearize` gives
+    reduced pose system formed densely: ``(dc [T,6], dx [N,3])``, or None where that system is not positive
+    definite (the caller's PCG handles it). Float64 arrays as :func:`linearize` gives
     them, ``pt, fr [M]`` int64; ``free [T]`` bool, the frames that move. The reduced system is ``D - B^T B``
     (``D`` the damped pose blocks, ``B`` the points' couplings whitened by their blocks' Cholesky factors), its
     product left to BLAS, which no hand-written loop matches."""
-    ok, B, A, L, y, rhs = _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, float(mu), free)
-    if not ok:
-        return None
-    with _blas_threads(1 if B.shape[0] * B.shape[1] ** 2 < SMALL_PRODUCT else None):
-        A -= B.T @ B
+    B, A, L, kind, y, rhs = _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, float(mu), free)
+    with _blas_threads(1):
+        if B.shape[0] * B.shape[1] ** 2 < SMALL_PRODUCT:
+            A -= B.T @ B
+        else:  # torch's threads, the pool the rest of the step uses (see SMALL_PRODUCT)
+            Bt = torch.from_numpy(B)
+            A -= (Bt.T @ Bt).numpy()
         fixed = np.repeat(~free, 6)
         A[fixed] = 0.0
         A[:, fixed] = 0.0
@@ -246,21 +277,21 @@ def schur_step(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu: float, free: np.ndarray):
         except np.linalg.LinAlgError:
             return None
         dc = cho_solve(c, rhs.reshape(-1), check_finite=False).reshape(-1, 6)
-    return dc, _back(L, y, Hcx, dc, pt, fr)
+    return dc, _back(L, kind, y, Hcx, dc, pt, fr)
 
 
-# below this many multiply-adds a reduced system's product and factorisation run on one BLAS thread: waking
-# OpenBLAS's threads for each cost more than they saved (stop 69, 2-core machine, a rigid fit's 800 points x 30
-# frames, 7.8e7: the whole step 13.7 ms on 2 threads, 4.9 ms on one)
+# numpy's and scipy's BLAS run on one thread here: OpenBLAS's threads, woken for each small system, cost more than
+# they saved (stop 69, 2-core machine, a rigid fit's 800 points x 30 frames, 7.8e7 multiply-adds: the whole step
+# 13.7 ms on 2 threads, 4.9 ms on one), and a second pool of threads spinning beside torch's slowed torch's own
+# operations after each step (stage 2 of a 30-frame 320x240 scene: its objective 3 -> 39 ms per evaluation). A
+# product of more than this many multiply-adds goes to torch, on torch's threads
 SMALL_PRODUCT = 2e8
 _controller = None
 
 
-def _blas_threads(n: int | None):
-    """A context in which BLAS (numpy's and scipy's OpenBLAS) runs on at most ``n`` threads; None: unchanged."""
+def _blas_threads(n: int):
+    """A context in which BLAS (numpy's and scipy's OpenBLAS) runs on at most ``n`` threads."""
     global _controller
-    if n is None:
-        return contextlib.nullcontext()
     if _controller is None:
         _controller = ThreadpoolController()
     return _controller.limit(limits=n, user_api="blas")

@@ -40,6 +40,14 @@ def _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2):
     return x0, x1, x2
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _camera_point(R, t, f, x0, x1, x2):
+    """``R[f] X + t[f]`` of the point ``X = (x0, x1, x2)``: its camera coordinates in frame ``f``."""
+    return (R[f, 0, 0] * x0 + R[f, 0, 1] * x1 + R[f, 0, 2] * x2 + t[f, 0],
+            R[f, 1, 0] * x0 + R[f, 1, 1] * x1 + R[f, 1, 2] * x2 + t[f, 1],
+            R[f, 2, 0] * x0 + R[f, 2, 1] * x1 + R[f, 2, 2] * x2 + t[f, 2])
+
+
 @njit(cache=True, error_model="numpy")
 def _insertion_sort(v, n):
     """``v[:n]`` sorted in place (a track's few values: no allocation, faster than a general sort)."""
@@ -98,9 +106,7 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
             for o in range(cnt):
                 f = obs[o]
                 c = frames[f]
-                y0 = R[f, 0, 0] * x0 + R[f, 0, 1] * x1 + R[f, 0, 2] * x2 + t[f, 0]
-                y1 = R[f, 1, 0] * x0 + R[f, 1, 1] * x1 + R[f, 1, 2] * x2 + t[f, 1]
-                y2 = R[f, 2, 0] * x0 + R[f, 2, 1] * x1 + R[f, 2, 2] * x2 + t[f, 2]
+                y0, y1, y2 = _camera_point(R, t, f, x0, x1, x2)
                 z = max(y2, 1e-3)
                 iz = 1.0 / z
                 pu = y0 * iz
@@ -149,9 +155,7 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
         for o in range(cnt):
             f = obs[o]
             c = frames[f]
-            y0 = R[f, 0, 0] * x0 + R[f, 0, 1] * x1 + R[f, 0, 2] * x2 + t[f, 0]
-            y1 = R[f, 1, 0] * x0 + R[f, 1, 1] * x1 + R[f, 1, 2] * x2 + t[f, 1]
-            y2 = R[f, 2, 0] * x0 + R[f, 2, 1] * x1 + R[f, 2, 2] * x2 + t[f, 2]
+            y0, y1, y2 = _camera_point(R, t, f, x0, x1, x2)
             z = max(y2, 1e-3)
             e0 = fx * y0 / z + cx - uv[row, c, 0]
             e1 = fy * y1 / z + cy - uv[row, c, 1]

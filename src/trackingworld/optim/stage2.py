@@ -202,11 +202,16 @@ class _FocalBlocks:
     Hxf: torch.Tensor
 
 
+# the compiled CPU kernels of optim.ba_blocks for the Gauss-Newton blocks and the dense Schur step, on CPU float64
+# (False: torch's code everywhere, the reference; for measuring the two against each other)
+COMPILED = True
+
+
 def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = False):
     """Gauss-Newton blocks (Hcc, Hxx, Hcx, gc, gx) of the IRLS-weighted problem; with ``points_only`` the pose
     blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs. With
     ``focal`` a sixth item holds the blocks of phi (:class:`_FocalBlocks`)."""
-    if not focal and R.device.type == "cpu" and R.dtype == torch.float64:  # the same, compiled (optim.ba_blocks)
+    if COMPILED and not focal and R.device.type == "cpu" and R.dtype == torch.float64:  # optim.ba_blocks
         return _linearize_compiled(R, t, X, p, points_only)
     Y, r_uv, r_d = residuals(R, t, X, p)
     M = Y.shape[0]
@@ -436,9 +441,9 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     Returns (dc [T,6], dx [N,3], dphi float)."""
     dense = 3 * p.n_points * (6 * p.n_frames) ** 2 <= DENSE_POSE_FLOPS and 3 * p.n_points * 6 * p.n_frames <= \
         DENSE_POSE_ENTRIES
-    if fb is None and dense and Hcc.device.type == "cpu" and Hcc.dtype == torch.float64:
-        # the same step compiled (optim.ba_blocks), with Cholesky factors of the point blocks: None where one is
-        # not positive definite, which the eigen-decomposition below handles
+    if COMPILED and fb is None and dense and Hcc.device.type == "cpu" and Hcc.dtype == torch.float64:
+        # the same step compiled (optim.ba_blocks), Cholesky factors of the point blocks where they are positive
+        # definite: None where the reduced system is not, which the PCG below handles
         num = lambda a: a.detach().numpy()  # noqa: E731
         out = ba_blocks.schur_step(num(Hcc), num(Hxx), num(Hcx), num(gc), num(gx), num(p.pt), num(p.fr), mu,
                                    num(free))
