@@ -123,3 +123,15 @@ def test_a_block_cholesky_refuses_is_factored_by_its_eigen_decomposition():
     np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-12)
     ba_blocks._apply(np.linalg.cholesky(H), 0, b, x)
     np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-12)
+
+
+def test_the_switch_runs_the_torch_code_everywhere(monkeypatch):
+    uv, vis, target, K, R, t = _problem(seed=5, n=40)
+    frames = np.arange(vis.shape[1])
+    motion = (frames, torch.as_tensor(R), torch.as_tensor(t))
+    monkeypatch.setattr(stage2, "COMPILED", False)
+    got = rigid.place_on_motion(uv, vis, target, motion, K, OptimConfig(), rows=np.arange(10))
+    ref = rigid._place_on_motion_torch(uv[:10], vis[:10], target[:10], motion, K, OptimConfig())
+    for a, b in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not stage2.compiled(torch.as_tensor(R))

@@ -26,6 +26,31 @@ from scipy.linalg import cho_factor, cho_solve
 from threadpoolctl import ThreadpoolController
 
 
+def f64(a) -> np.ndarray:
+    """``a`` as a contiguous float64 array (no copy when it already is one): one compiled signature for every call."""
+    return np.ascontiguousarray(a, np.float64)
+
+
+def i64(a) -> np.ndarray:
+    """``a`` as a contiguous int64 array (no copy when it already is one)."""
+    return np.ascontiguousarray(a, np.int64)
+
+
+def camera_constants(K: np.ndarray, kernel_focal: float | None = None) -> np.ndarray:
+    """The kernels' camera numbers ``[5]``: fx, fy, cx, cy (px) of ``K`` and the focal length (px) of the Huber
+    thresholds (``kernel_focal``, None: sqrt(fx fy), as :attr:`trackingworld.optim.stage2.BAProblem.kernel_f`)."""
+    fxy = math.sqrt(K[0, 0] * K[1, 1]) if kernel_focal is None else kernel_focal
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], fxy], np.float64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def camera_point(R, t, f, x0, x1, x2):
+    """``R[f] X + t[f]`` of the point ``X = (x0, x1, x2)``: its camera coordinates in frame ``f``."""
+    return (R[f, 0, 0] * x0 + R[f, 0, 1] * x1 + R[f, 0, 2] * x2 + t[f, 0],
+            R[f, 1, 0] * x0 + R[f, 1, 1] * x1 + R[f, 1, 2] * x2 + t[f, 1],
+            R[f, 2, 0] * x0 + R[f, 2, 1] * x1 + R[f, 2, 2] * x2 + t[f, 2])
+
+
 @njit(cache=True, error_model="numpy")
 def _blocks(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc, points_only):
     """The blocks (see :func:`linearize`; ``k`` = fx, fy, cx, cy, the kernel's focal; ``weights`` = lambda_ba,
@@ -45,9 +70,7 @@ def _blocks(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc, points
     r = np.zeros(3)
     for m in range(M):
         i, f = pt[m], fr[m]
-        y0 = R[f, 0, 0] * X[i, 0] + R[f, 0, 1] * X[i, 1] + R[f, 0, 2] * X[i, 2] + t[f, 0]
-        y1 = R[f, 1, 0] * X[i, 0] + R[f, 1, 1] * X[i, 1] + R[f, 1, 2] * X[i, 2] + t[f, 1]
-        y2 = R[f, 2, 0] * X[i, 0] + R[f, 2, 1] * X[i, 1] + R[f, 2, 2] * X[i, 2] + t[f, 2]
+        y0, y1, y2 = camera_point(R, t, f, X[i, 0], X[i, 1], X[i, 2])
         z = max(y2, 1e-3)
         r[0] = fx * y0 / z + cx - uv[m, 0]
         r[1] = fy * y1 / z + cy - uv[m, 1]
@@ -114,13 +137,9 @@ def linearize(R: np.ndarray, t: np.ndarray, X: np.ndarray, pt: np.ndarray, fr: n
     lambda_asap; ``offsets``, ``log_dc``, ``kernel_focal`` and ``dc_weight [M]`` as in
     :class:`trackingworld.optim.stage2.BAProblem`). With ``points_only`` the pose blocks are empty (first
     dimension 0): what a fit of the points under fixed poses needs."""
-    fxy = math.sqrt(K[0, 0] * K[1, 1]) if kernel_focal is None else kernel_focal
-    k = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], fxy], np.float64)
-    dcw = np.ones(len(pt)) if dc_weight is None else np.ascontiguousarray(dc_weight, np.float64)
-    f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731  (no copy when it already is)
-    i64 = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
-    return _blocks(f64(R), f64(t), f64(X), i64(pt), i64(fr), f64(uv), f64(depth), dcw, k, f64(weights),
-                   bool(offsets), bool(log_dc), bool(points_only))
+    dcw = np.ones(len(pt)) if dc_weight is None else f64(dc_weight)
+    return _blocks(f64(R), f64(t), f64(X), i64(pt), i64(fr), f64(uv), f64(depth), dcw,
+                   camera_constants(K, kernel_focal), f64(weights), bool(offsets), bool(log_dc), bool(points_only))
 
 
 @njit(cache=True, error_model="numpy")
@@ -259,8 +278,8 @@ def schur_step(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu: float, free: np.ndarray):
     reduced pose system formed densely: ``(dc [T,6], dx [N,3])``, or None where that system is not positive
     definite (the caller's PCG handles it). Float64 arrays as :func:`linearize` gives
     them, ``pt, fr [M]`` int64; ``free [T]`` bool, the frames that move. The reduced system is ``D - B^T B``
-    (``D`` the damped pose blocks, ``B`` the points' couplings whitened by their blocks' Cholesky factors), its
-    product left to BLAS, which no hand-written loop matches."""
+    (``D`` the damped pose blocks, ``B`` the points' couplings whitened by their blocks' factors), its product left
+    to BLAS, which no hand-written loop matches."""
     B, A, L, kind, y, rhs = _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, float(mu), free)
     with _blas_threads(1):
         if B.shape[0] * B.shape[1] ** 2 < SMALL_PRODUCT:

@@ -21,6 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
+from trackingworld.optim.ba_blocks import camera_constants, camera_point, f64, i64
+
 
 @njit(cache=True, error_model="numpy")
 def _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2):
@@ -38,14 +40,6 @@ def _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2):
     x1 = (y1 - l21 * x2) / l11
     x0 = (y0 - l10 * x1 - l20 * x2) / l00
     return x0, x1, x2
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _camera_point(R, t, f, x0, x1, x2):
-    """``R[f] X + t[f]`` of the point ``X = (x0, x1, x2)``: its camera coordinates in frame ``f``."""
-    return (R[f, 0, 0] * x0 + R[f, 0, 1] * x1 + R[f, 0, 2] * x2 + t[f, 0],
-            R[f, 1, 0] * x0 + R[f, 1, 1] * x1 + R[f, 1, 2] * x2 + t[f, 1],
-            R[f, 2, 0] * x0 + R[f, 2, 1] * x1 + R[f, 2, 2] * x2 + t[f, 2])
 
 
 @njit(cache=True, error_model="numpy")
@@ -106,7 +100,7 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
             for o in range(cnt):
                 f = obs[o]
                 c = frames[f]
-                y0, y1, y2 = _camera_point(R, t, f, x0, x1, x2)
+                y0, y1, y2 = camera_point(R, t, f, x0, x1, x2)
                 z = max(y2, 1e-3)
                 iz = 1.0 / z
                 pu = y0 * iz
@@ -155,7 +149,7 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
         for o in range(cnt):
             f = obs[o]
             c = frames[f]
-            y0, y1, y2 = _camera_point(R, t, f, x0, x1, x2)
+            y0, y1, y2 = camera_point(R, t, f, x0, x1, x2)
             z = max(y2, 1e-3)
             e0 = fx * y0 / z + cx - uv[row, c, 0]
             e1 = fy * y1 / z + cy - uv[row, c, 1]
@@ -184,9 +178,6 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
     for a track seen in none)."""
     rows = np.arange(len(vis)) if rows is None else rows
     frames = np.arange(vis.shape[1]) if frames is None else frames
-    fxy = math.sqrt(K[0, 0] * K[1, 1]) if kernel_focal is None else kernel_focal
-    k = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], fxy], np.float64)
-    f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731  (no copy when it already is)
-    i64 = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731  (one compiled signature for every call)
-    return _fit_and_score(f64(R), f64(t), k, f64(uv), f64(depth), np.ascontiguousarray(vis, np.bool_), i64(rows),
-                          i64(frames), f64(weights), bool(offsets), bool(log_dc), int(iters))
+    return _fit_and_score(f64(R), f64(t), camera_constants(K, kernel_focal), f64(uv), f64(depth),
+                          np.ascontiguousarray(vis, np.bool_), i64(rows), i64(frames), f64(weights), bool(offsets),
+                          bool(log_dc), int(iters))

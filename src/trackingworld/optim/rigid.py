@@ -208,12 +208,12 @@ def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device
     error ``[n,2]`` px over the solved frames a track is seen in, inf where fewer than 3; median
     ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
     order, R, t = motion
-    if torch.device(device).type != "cpu" or dtype != torch.float64:
+    if not stage2.compiled(R):  # the motion is solved in dtype on device (fit_motion)
         if rows is not None:
             uv, vis, target = uv[rows], vis[rows], target[rows]
         return _place_on_motion_torch(uv, vis, target, motion, K, cfg, dtype, device)
     # the same steps compiled for the CPU (optim.point_fit): 10x faster
-    return point_fit.fit_and_score(R.detach().cpu().numpy(), t.detach().cpu().numpy(), K, uv, target, vis,
+    return point_fit.fit_and_score(R.detach().numpy(), t.detach().numpy(), K, uv, target, vis,
                                    (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap),
                                    not cfg.no_offsets, cfg.dc_space == "log", rows=rows, frames=order)
 

@@ -202,16 +202,27 @@ class _FocalBlocks:
     Hxf: torch.Tensor
 
 
-# the compiled CPU kernels of optim.ba_blocks for the Gauss-Newton blocks and the dense Schur step, on CPU float64
-# (False: torch's code everywhere, the reference; for measuring the two against each other)
+# the compiled CPU kernels (optim.ba_blocks: the Gauss-Newton blocks and the dense Schur step; optim.point_fit: the
+# rigid step's membership test) on CPU float64 tensors (False: torch's code everywhere, the reference; for measuring
+# the two against each other)
 COMPILED = True
+
+
+def compiled(x: torch.Tensor) -> bool:
+    """Whether work on tensors like ``x`` runs the compiled CPU kernels (:data:`COMPILED`, a CPU float64 tensor)."""
+    return COMPILED and x.device.type == "cpu" and x.dtype == torch.float64
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    """The array behind a CPU tensor (no copy)."""
+    return x.detach().numpy()
 
 
 def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = False):
     """Gauss-Newton blocks (Hcc, Hxx, Hcx, gc, gx) of the IRLS-weighted problem; with ``points_only`` the pose
     blocks are skipped (returned as None): what a fit of the points with the poses held fixed needs. With
     ``focal`` a sixth item holds the blocks of phi (:class:`_FocalBlocks`)."""
-    if COMPILED and not focal and R.device.type == "cpu" and R.dtype == torch.float64:  # optim.ba_blocks
+    if not focal and compiled(R):  # optim.ba_blocks
         return _linearize_compiled(R, t, X, p, points_only)
     Y, r_uv, r_d = residuals(R, t, X, p)
     M = Y.shape[0]
@@ -254,12 +265,10 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
 def _linearize_compiled(R, t, X, p: BAProblem, points_only: bool):
     """:func:`_linearize` (no focal unknown) by :func:`trackingworld.optim.ba_blocks.linearize`, on CPU float64
     tensors."""
-    num = lambda a: a.detach().numpy()  # noqa: E731
-    K = num(p.K)
-    blocks = ba_blocks.linearize(num(R), num(t), num(X), num(p.pt), num(p.fr), num(p.uv), num(p.depth), K,
+    blocks = ba_blocks.linearize(_np(R), _np(t), _np(X), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), _np(p.K),
                                  (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
                                  None if p.kernel_focal is None else float(p.kernel_focal),
-                                 None if p.dc_weight is None else num(p.dc_weight), points_only)
+                                 None if p.dc_weight is None else _np(p.dc_weight), points_only)
     Hcc, Hxx, Hcx, gc, gx = (torch.from_numpy(b) for b in blocks)
     return (None, Hxx, None, None, gx) if points_only else (Hcc, Hxx, Hcx, gc, gx)
 
@@ -441,12 +450,11 @@ def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tens
     Returns (dc [T,6], dx [N,3], dphi float)."""
     dense = 3 * p.n_points * (6 * p.n_frames) ** 2 <= DENSE_POSE_FLOPS and 3 * p.n_points * 6 * p.n_frames <= \
         DENSE_POSE_ENTRIES
-    if COMPILED and fb is None and dense and Hcc.device.type == "cpu" and Hcc.dtype == torch.float64:
-        # the same step compiled (optim.ba_blocks), Cholesky factors of the point blocks where they are positive
-        # definite: None where the reduced system is not, which the PCG below handles
-        num = lambda a: a.detach().numpy()  # noqa: E731
-        out = ba_blocks.schur_step(num(Hcc), num(Hxx), num(Hcx), num(gc), num(gx), num(p.pt), num(p.fr), mu,
-                                   num(free))
+    if fb is None and dense and compiled(Hcc):
+        # the same step compiled (optim.ba_blocks); None where the reduced system is not positive definite, which
+        # the code below hands to PCG
+        out = ba_blocks.schur_step(_np(Hcc), _np(Hxx), _np(Hcx), _np(gc), _np(gx), _np(p.pt), _np(p.fr), mu,
+                                   _np(free))
         if out is not None:
             return torch.from_numpy(out[0]), torch.from_numpy(out[1]), 0.0
     # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
