@@ -86,6 +86,12 @@ def test_the_compiled_blocks_give_the_torch_reference(offsets, space, weighted):
     # the Huber weights matter (offsets on) or are all 1 (off)
     plain = stage2._linearize(Rt, tt, X, replace(p, offsets=False))[1]
     assert offsets == bool((got[1] != plain).any())
+    # and the objective's value: as given, at a refined focal length (its kernel at the starting one), without the
+    # depth term
+    for q in (p, p.with_focal_scale(0.05), replace(p, lambda_dc=0.0)):
+        ref_cost = float(stage2.loss(Rt, tt, X, q))
+        assert abs(stage2.loss_value(Rt, tt, X, q) - ref_cost) <= 1e-12 * ref_cost
+    assert stage2.loss_value(Rt, tt, X, p) != stage2.loss_value(Rt, tt, X, p.with_focal_scale(0.05))
 
 
 def test_the_compiled_step_gives_the_torch_reference(monkeypatch):
@@ -109,6 +115,46 @@ def test_the_compiled_step_gives_the_torch_reference(monkeypatch):
     assert abs(sol.cost - ref.cost) <= 1e-9 * ref.cost
     torch.testing.assert_close(sol.t, ref.t, rtol=0, atol=1e-9)
 
+
+
+def _windowed(vis: np.ndarray, seed: int) -> np.ndarray:
+    """``vis`` kept in a window of 3-8 frames per track, as a long video's static points are seen."""
+    rng = np.random.default_rng(seed)
+    n, T = vis.shape
+    out = np.zeros_like(vis)
+    for i in range(n):
+        s = rng.integers(0, T - 8)
+        out[i, s:s + rng.integers(3, 9)] = True
+    return out & (vis | (rng.random(vis.shape) < 0.5))
+
+
+@pytest.mark.parametrize("how", ["blas", "pairs"])
+@pytest.mark.parametrize("windowed", [False, True])
+def test_both_ways_of_forming_the_reduced_system_give_the_torch_step(how, windowed, monkeypatch):
+    uv, vis, target, K, R, t = _problem(seed=6, n=300, T=30)
+    if windowed:
+        vis = _windowed(vis, 0)
+    p = stage2.BAProblem.from_tracks(uv, target, vis, K, OptimConfig(), torch.float64, "cpu")
+    Rt, tt = torch.as_tensor(R), torch.as_tensor(t)
+    blocks = stage2._linearize(Rt, tt, stage2.init_points(Rt, tt, p), p)
+    free = torch.ones(p.n_frames, dtype=torch.bool)
+    free[0] = False
+    dc, dx = ba_blocks.schur_step(*(b.numpy() for b in blocks), p.pt.numpy(), p.fr.numpy(), 1e-3, free.numpy(), how)
+    monkeypatch.setattr(stage2.ba_blocks, "schur_step", lambda *a: None)  # torch
+    dc_ref, dx_ref, _ = stage2._schur_step(*blocks, p, 1e-3, free)
+    assert float(dc_ref.abs().max()) > 1e-4 and (dc[0] == 0).all()
+    np.testing.assert_allclose(dc, dc_ref.numpy(), rtol=0, atol=1e-10 * float(dc_ref.abs().max()))
+    np.testing.assert_allclose(dx, dx_ref.numpy(), rtol=0, atol=1e-10 * float(dx_ref.abs().max()))
+    # the cheaper way is the one taken: the product of the dense coupling where each point is seen in most frames,
+    # the pairs where in a few
+    chosen, cost = ba_blocks.reduced_cost(p.pt.numpy(), p.n_points, p.n_frames)
+    assert chosen == ("pairs" if windowed else "blas") and cost > 0
+    monkeypatch.undo()
+    taken = []
+    step = ba_blocks.schur_step
+    monkeypatch.setattr(stage2.ba_blocks, "schur_step", lambda *a: taken.append(a[-1]) or step(*a))
+    stage2._schur_step(*blocks, p, 1e-3, free)
+    assert taken == [chosen]
 
 
 def test_a_block_cholesky_refuses_is_factored_by_its_eigen_decomposition():

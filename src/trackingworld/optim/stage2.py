@@ -262,15 +262,27 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
     return Hcc, Hxx, Hcx, gc, gx, fb
 
 
+def _kernel_args(R, t, X, p: BAProblem) -> tuple:
+    """The arguments of :func:`trackingworld.optim.ba_blocks.linearize` and ``cost`` for the problem ``p``."""
+    return (_np(R), _np(t), _np(X), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), _np(p.K),
+            (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
+            None if p.kernel_focal is None else float(p.kernel_focal),
+            None if p.dc_weight is None else _np(p.dc_weight))
+
+
 def _linearize_compiled(R, t, X, p: BAProblem, points_only: bool):
     """:func:`_linearize` (no focal unknown) by :func:`trackingworld.optim.ba_blocks.linearize`, on CPU float64
     tensors."""
-    blocks = ba_blocks.linearize(_np(R), _np(t), _np(X), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), _np(p.K),
-                                 (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
-                                 None if p.kernel_focal is None else float(p.kernel_focal),
-                                 None if p.dc_weight is None else _np(p.dc_weight), points_only)
-    Hcc, Hxx, Hcx, gc, gx = (torch.from_numpy(b) for b in blocks)
+    Hcc, Hxx, Hcx, gc, gx = (torch.from_numpy(b) for b in ba_blocks.linearize(*_kernel_args(R, t, X, p), points_only))
     return (None, Hxx, None, None, gx) if points_only else (Hcc, Hxx, Hcx, gc, gx)
+
+
+def loss_value(R, t, X, p: BAProblem) -> float:
+    """:func:`loss` as a float, by the compiled kernel (:func:`trackingworld.optim.ba_blocks.cost`) where
+    :func:`compiled` says so."""
+    if compiled(R):
+        return ba_blocks.cost(*_kernel_args(R, t, X, p))
+    return float(loss(R, t, X, p))
 
 
 def _mv(J: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -346,6 +358,10 @@ def coarse_basis(free: torch.Tensor, spacing: int, dtype, device) -> torch.Tenso
 # over 75-150 frames) took 29.5 -> 24.2 s and 854x480's stage 2 3.6 -> 2.2-2.7 s, the same labels, positions within 2 um
 DENSE_POSE_FLOPS = 2e9
 DENSE_POSE_ENTRIES = 1e7  # ... and its point-pose coupling (3N x 6T numbers) up to this many (80 MB in float64)
+# the compiled step (optim.ba_blocks.schur_step, float64 on a CPU) forms the reduced system densely up to this cost
+# (optim.ba_blocks.reduced_cost, multiply-adds of BLAS) and this many frames: XXX
+COMPILED_DENSE_COST = 2e9
+COMPILED_DENSE_FRAMES = 400
 
 
 def _dense_pose_solve(G, Hcc_d, Hcf, Hff_d, w, rhs, p: BAProblem, free: torch.Tensor, use_f: bool):
@@ -446,17 +462,21 @@ def _pcg_pose_solve(G, Hcc, Hcc_d, Hxx_inv, fb: _FocalBlocks, Hff_d, w, rhs, p: 
 def _schur_step(Hcc, Hxx, Hcx, gc, gx, p: BAProblem, mu: float, free: torch.Tensor,
                 fb: _FocalBlocks | None = None):
     """One damped Gauss-Newton step: the points eliminated (Schur complement), poses (and phi) by a dense Cholesky
-    solve where the reduced system is small (:data:`DENSE_POSE_FLOPS`), else by PCG.
+    solve where the reduced system is small (:data:`COMPILED_DENSE_COST` for the compiled step, else
+    :data:`DENSE_POSE_FLOPS`), else by PCG.
     Returns (dc [T,6], dx [N,3], dphi float)."""
+    if fb is None and compiled(Hcc) and p.n_frames <= COMPILED_DENSE_FRAMES:
+        # the same step compiled (optim.ba_blocks), with the reduced system formed the cheaper of two ways; None
+        # where that system is not positive definite, which the code below hands to PCG
+        pt = _np(p.pt)
+        how, cost = ba_blocks.reduced_cost(pt, p.n_points, p.n_frames)
+        if cost <= COMPILED_DENSE_COST:
+            out = ba_blocks.schur_step(_np(Hcc), _np(Hxx), _np(Hcx), _np(gc), _np(gx), pt, _np(p.fr), mu, _np(free),
+                                       how)
+            if out is not None:
+                return torch.from_numpy(out[0]), torch.from_numpy(out[1]), 0.0
     dense = 3 * p.n_points * (6 * p.n_frames) ** 2 <= DENSE_POSE_FLOPS and 3 * p.n_points * 6 * p.n_frames <= \
         DENSE_POSE_ENTRIES
-    if fb is None and dense and compiled(Hcc):
-        # the same step compiled (optim.ba_blocks); None where the reduced system is not positive definite, which
-        # the code below hands to PCG
-        out = ba_blocks.schur_step(_np(Hcc), _np(Hxx), _np(Hcx), _np(gc), _np(gx), _np(p.pt), _np(p.fr), mu,
-                                   _np(free))
-        if out is not None:
-            return torch.from_numpy(out[0]), torch.from_numpy(out[1]), 0.0
     # Hxx^-1 = L L^T from the eigen-decomposition of the damped 3x3 blocks (robust where a block is near
     # singular, e.g. a point seen along one ray without depth consistency)
     lam, V = torch.linalg.eigh(_damp(Hxx, mu))
@@ -516,7 +536,7 @@ def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None
     free = torch.ones(p.n_frames, dtype=torch.bool, device=R.device)
     free[0] = False
     phi = 0.0
-    cost = float(loss(R, t, X, p))
+    cost = loss_value(R, t, X, p)
     mu = 1e-4
     for it in range(iters):
         pk = p.with_focal_scale(phi) if refine_focal else p
@@ -526,7 +546,7 @@ def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None
             df = float(np.clip(df, -MAX_FOCAL_STEP, MAX_FOCAL_STEP))
             Rn, tn = lie.update(R, t, dc)
             Xn = X + dx
-            new = float(loss(Rn, tn, Xn, p.with_focal_scale(phi + df) if refine_focal else p))
+            new = loss_value(Rn, tn, Xn, p.with_focal_scale(phi + df) if refine_focal else p)
             if new <= cost or mu > 1e6:
                 break
             mu *= 8
