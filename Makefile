@@ -17,6 +17,8 @@ $(VENV)/.installed: pyproject.toml
 	# the plain OpenCV wheels share the cv2 folder with the contrib build the package needs: removed first
 	$(BIN)/pip uninstall -y -q opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e ".[dev]"
+	# the CPU kernels compiled now (numba caches them beside the package) rather than in the first run
+	$(BIN)/python -m trackingworld.optim.warmup
 	touch $@
 
 demo: setup

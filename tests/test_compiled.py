@@ -181,3 +181,12 @@ def test_the_switch_runs_the_torch_code_everywhere(monkeypatch):
     for a, b in zip(got, ref, strict=True):
         np.testing.assert_array_equal(a, b)
     assert not stage2.compiled(torch.as_tensor(R))
+
+
+def test_the_warm_up_compiles_every_kernel_the_pipeline_calls():
+    from trackingworld.optim import point_fit, warmup
+
+    assert warmup.warm() > 0
+    kernels = (point_fit._fit_and_score, ba_blocks._blocks, ba_blocks._cost, ba_blocks._reduce, ba_blocks._coupling,
+               ba_blocks._subtract_pairs, ba_blocks._back)
+    assert all(k.signatures for k in kernels)

@@ -359,8 +359,13 @@ def coarse_basis(free: torch.Tensor, spacing: int, dtype, device) -> torch.Tenso
 DENSE_POSE_FLOPS = 2e9
 DENSE_POSE_ENTRIES = 1e7  # ... and its point-pose coupling (3N x 6T numbers) up to this many (80 MB in float64)
 # the compiled step (optim.ba_blocks.schur_step, float64 on a CPU) forms the reduced system densely up to this cost
-# (optim.ba_blocks.reduced_cost, multiply-adds of BLAS) and this many frames: XXX
-COMPILED_DENSE_COST = 2e9
+# (optim.ba_blocks.reduced_cost, multiply-adds of BLAS) and this many frames (a 2400 x 2400 system, 46 MB), else
+# PCG. Stop 70, 2-core CPU, one step on random problems, dense against PCG: 800 points seen in half to all of 120 /
+# 200 / 300 / 400 frames (cost 6.2e8 / 1.7e9 / 3.9e9 / 6.9e9) 83 / 144 / 430 / 737 ms against 401 / 550 / 941 /
+# 1,470 ms; 8,000 / 20,000 / 30,000 points seen in 5-30 frames of 120 / 120 / 30 (the pairs, 9.4e8 / 2.3e9 /
+# 3.5e9) 76 / 213 / 232 ms against 775 / 2,219 / 2,984 ms. Stage 2 of the 120-frame video of bench_scaling.py
+# (8,161 points): 0.12 s a step against 0.38 s
+COMPILED_DENSE_COST = 1e10
 COMPILED_DENSE_FRAMES = 400
 
 

@@ -1,0 +1,50 @@
+"""Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
+
+numba compiles :mod:`trackingworld.optim.point_fit` and :mod:`trackingworld.optim.ba_blocks` on their first call and
+caches the machine code beside the package; without this step the first run on a machine pays that compile (about
+20 s on a 2-core CPU) in the middle of its optimisation. Each kernel is called here once on a tiny problem, with
+the argument types the pipeline calls it with.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+
+def warm() -> float:
+    """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
+    took."""
+    from trackingworld.optim import ba_blocks, point_fit
+
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0)
+    T, N = 4, 6
+    R = np.tile(np.eye(3), (T, 1, 1))
+    t = np.c_[0.1 * rng.standard_normal((T, 2)), np.full(T, 3.0)]
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    uv = (160 + 20 * rng.standard_normal((N, T, 2))).astype(np.float32)
+    depth = np.full((N, T), 3.0)
+    vis = np.ones((N, T), bool)
+    weights = (1.0, 1.0, 5.0)
+    point_fit.fit_and_score(R, t, K, uv, depth, vis, weights, rows=np.arange(N), frames=np.arange(T))
+    pt, fr = np.nonzero(vis)
+    X = rng.standard_normal((N, 3))
+    blocks = ba_blocks.linearize(R, t, X, pt, fr, uv[pt, fr], depth[pt, fr], K, weights)
+    ba_blocks.cost(R, t, X, pt, fr, uv[pt, fr], depth[pt, fr], K, weights)
+    free = np.ones(T, bool)
+    free[0] = False
+    for how in ("blas", "pairs"):
+        ba_blocks.schur_step(*blocks, pt, fr, 1e-3, free, how)
+    return time.perf_counter() - t0
+
+
+def main() -> int:
+    print(f"[warmup] the CPU kernels compiled or loaded in {warm():.1f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
