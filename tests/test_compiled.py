@@ -1,4 +1,4 @@
-"""optim.point_fit and optim.ba_blocks: the compiled CPU kernels give the torch reference's numbers."""
+"""optim.point_fit, optim.ba_blocks and optim.static_fit: the compiled CPU kernels give the torch reference's numbers."""
 
 from dataclasses import replace
 
@@ -9,8 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
-from trackingworld.optim import ba_blocks, rigid, stage2
+from trackingworld.optim import ba_blocks, rigid, stage2, static_fit
 from trackingworld.optim.point_fit import fit_and_score
+from trackingworld.optim.static_tests import fits_static
 
 
 def _problem(seed: int = 0, n: int = 300, T: int = 12):
@@ -188,5 +189,58 @@ def test_the_warm_up_compiles_every_kernel_the_pipeline_calls():
 
     assert warmup.warm() > 0
     kernels = (point_fit._fit_and_score, ba_blocks._blocks, ba_blocks._cost, ba_blocks._reduce, ba_blocks._coupling,
-               ba_blocks._subtract_pairs, ba_blocks._back)
+               ba_blocks._subtract_pairs, ba_blocks._back, static_fit._fit_points)
     assert all(k.signatures for k in kernels)
+
+
+def _static_problem(seed: int, n: int, T: int, cfg: OptimConfig, dc_weight: bool = False):
+    """A float32 problem of the static tests (poses world-to-camera, observations by point) from :func:`_problem`,
+    with per-observation depth weights where asked."""
+    uv, vis, target, K, R, t = _problem(seed=seed, n=n, T=T)
+    p = stage2.BAProblem.from_tracks(uv, target, vis, K, cfg, torch.float32, "cpu")
+    if dc_weight:
+        p = replace(p, dc_weight=torch.rand(len(p.pt), generator=torch.Generator().manual_seed(seed)) + 0.5)
+    return p, torch.as_tensor(R, dtype=torch.float32), torch.as_tensor(t, dtype=torch.float32)
+
+
+@pytest.mark.parametrize("offsets,space,weighted,focal", [(True, "log", False, None), (True, "metres", False, None),
+                                                          (False, "log", False, None), (True, "log", True, 310.0)])
+def test_the_compiled_static_fit_gives_the_torch_float32_points(offsets, space, weighted, focal, monkeypatch):
+    cfg = replace(OptimConfig(), no_offsets=not offsets, dc_space=space)
+    p, R, t = _static_problem(3, 2000, 20, cfg, weighted)
+    p = replace(p, kernel_focal=focal)
+    got = stage2.fit_points(R, t, p)
+    monkeypatch.setattr(stage2, "COMPILED", False)
+    ref = stage2.fit_points(R, t, p)
+    monkeypatch.undo()
+    X64 = stage2.fit_points(R.double(), t.double(), replace(
+        p, uv=p.uv.double(), depth=p.depth.double(), K=p.K.double(),
+        dc_weight=None if p.dc_weight is None else p.dc_weight.double()))
+    assert got.dtype == torch.float32 and got.shape == ref.shape == (p.n_points, 3)
+    seen = torch.bincount(p.pt, minlength=p.n_points) > 0
+    assert (got[~seen] == 0).all() and (ref[~seen] == 0).all()  # a track seen nowhere: the origin, as torch's
+    # within float32's rounding of the torch reference, which is as far from float64's numbers as the kernel is
+    diff = (got - ref).abs().max().item()
+    assert diff <= 2e-6
+    assert (got.double() - X64).abs().max().item() <= 2 * (ref.double() - X64).abs().max().item() + 1e-7
+    # ... and most points to the last bit
+    assert (got == ref).all(1).float().mean().item() > 0.4
+
+
+def test_the_compiled_static_fit_reads_observations_in_any_order():
+    p, R, t = _static_problem(4, 300, 10, OptimConfig())
+    perm = torch.randperm(len(p.pt), generator=torch.Generator().manual_seed(0))
+    shuffled = replace(p, pt=p.pt[perm], fr=p.fr[perm], uv=p.uv[perm], depth=p.depth[perm])
+    np.testing.assert_allclose(stage2.fit_points(R, t, shuffled), stage2.fit_points(R, t, p), rtol=0, atol=2e-6)
+
+
+def test_the_static_tests_take_the_same_verdicts_as_the_torch_reference(monkeypatch):
+    uv, vis, target, K, R, t = _problem(seed=6, n=3000, T=16)
+    Rt, tt = torch.as_tensor(R), torch.as_tensor(t)
+    cfg = replace(OptimConfig(), epsilon=0.02)
+    got = fits_static(uv, target, vis, K, Rt, tt, cfg, torch.float32, "cpu")
+    monkeypatch.setattr(stage2, "COMPILED", False)
+    ref = fits_static(uv, target, vis, K, Rt, tt, cfg, torch.float32, "cpu")
+    assert 0.2 < got[0].mean() < 0.9  # the third off the motion fails, as do some with the noisy target
+    assert (got[0] != ref[0]).sum() <= 3
+    np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=2e-6)

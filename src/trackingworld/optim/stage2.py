@@ -40,7 +40,7 @@ import torch
 
 from trackingworld.config import OptimConfig, offset_percentile
 from trackingworld.geometry import transform, unproject
-from trackingworld.optim import ba_blocks, lie
+from trackingworld.optim import ba_blocks, lie, static_fit
 from trackingworld.optim.linalg import pcg, sparse_csr
 
 
@@ -203,8 +203,8 @@ class _FocalBlocks:
 
 
 # the compiled CPU kernels (optim.ba_blocks: the Gauss-Newton blocks and the dense Schur step; optim.point_fit: the
-# rigid step's membership test) on CPU float64 tensors (False: torch's code everywhere, the reference; for measuring
-# the two against each other)
+# rigid step's membership test) on CPU float64 tensors, and optim.static_fit (the static tests' point fits) on CPU
+# float32 ones (False: torch's code everywhere, the reference; for measuring the two against each other)
 COMPILED = True
 
 
@@ -678,7 +678,14 @@ def _sorted_by_point(v: np.ndarray, pt: np.ndarray, n: int) -> tuple[np.ndarray,
 
 def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
     """Best static point ``[N,3]`` of every track with the poses held fixed (Gauss-Newton on the same
-    objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment."""
+    objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment. On a CPU
+    in float32 (the static tests') by the compiled kernel :func:`trackingworld.optim.static_fit.fit_points`."""
+    if COMPILED and R.device.type == "cpu" and R.dtype == torch.float32:
+        return torch.from_numpy(static_fit.fit_points(
+            _np(R), _np(t), _np(p.K), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), p.n_points,
+            (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
+            None if p.kernel_focal is None else float(p.kernel_focal),
+            None if p.dc_weight is None else _np(p.dc_weight), iters))
     X = init_points(R, t, p)
     eye = torch.eye(3, dtype=X.dtype, device=X.device)
     for _ in range(iters):

@@ -1,6 +1,7 @@
 """Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
 
-numba compiles :mod:`trackingworld.optim.point_fit` and :mod:`trackingworld.optim.ba_blocks` on their first call and
+numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks` and
+:mod:`trackingworld.optim.static_fit` on their first call and
 caches the machine code beside the package; without this step the first run on a machine pays that compile (about
 20 s on a 2-core CPU) in the middle of its optimisation. Each kernel is called here once on a tiny problem, with
 the argument types the pipeline calls it with.
@@ -17,7 +18,7 @@ import numpy as np
 def warm() -> float:
     """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
     took."""
-    from trackingworld.optim import ba_blocks, point_fit
+    from trackingworld.optim import ba_blocks, point_fit, static_fit
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -38,6 +39,8 @@ def warm() -> float:
     free[0] = False
     for how in ("blas", "pairs"):
         ba_blocks.schur_step(*blocks, pt, fr, 1e-3, free, how)
+    for dc_weight in (None, np.ones(len(pt))):  # the static tests' fits (float32), with and without depth weights
+        static_fit.fit_points(R, t, K, pt, fr, uv[pt, fr], depth[pt, fr], N, weights, dc_weight=dc_weight)
     return time.perf_counter() - t0
 
 
