@@ -10,7 +10,10 @@ the neighbours' 3D positions (the authors' rebuild) would blur detail below the 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from trackingworld.geometry import unproject
@@ -76,12 +79,43 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
     idx = idx.reshape(len(query_uv), k)
     P = unproject(query_uv, query_depth, K)
     Q = unproject(ref_uv, ref_depth, K)
+    colour = colour_sigma > 0 and ref_colour is not None and query_colour is not None
+    if not colour and k < 8 and P.dtype == Q.dtype == np.float64:  # numpy's sums of 8 or more run pairwise
+        return _idw(P, Q, idx, np.ascontiguousarray(ref_ratio, np.float64), float(eps))
     d = np.linalg.norm(P[:, None] - Q[idx], axis=-1)
     w = 1.0 / (d + eps)
-    if colour_sigma > 0 and ref_colour is not None and query_colour is not None:
+    if colour:
         dc = np.abs(query_colour[:, None].astype(np.float32) - ref_colour[idx].astype(np.float32)).max(-1)
         w = w * np.exp(-0.5 * (dc / colour_sigma) ** 2) + 1e-12  # every weight tiny: the plain mean
     return (w * ref_ratio[idx]).sum(1) / w.sum(1)
+
+
+@njit(cache=True, error_model="numpy")
+def _idw(P, Q, idx, ratio, eps):
+    """:func:`propagate_ratio`'s weighted mean without colours, float64, in one pass: the same numbers as numpy's
+    ``norm(P[:, None] - Q[idx])``, ``1 / (d + eps)`` and the two sums over the neighbours (the same operations in
+    the same order, to the last bit for k < 8, where numpy sums the neighbours one after the other:
+    ``tests/test_densify.py``), without the ``[Q,k,3]`` temporaries (a frame of 854x480 pixels, k = 4: 0.22 ->
+    0.01 s). P [Q,3], Q [R,3] the lifted points, idx [Q,k], ratio [R] float64."""
+    n, k = idx.shape
+    out = np.empty(n)
+    for i in range(n):
+        sw = 0.0
+        swr = 0.0
+        for j in range(k):
+            r = idx[i, j]
+            a = P[i, 0] - Q[r, 0]
+            b = P[i, 1] - Q[r, 1]
+            c = P[i, 2] - Q[r, 2]
+            w = 1.0 / (math.sqrt(a * a + b * b + c * c) + eps)
+            if j == 0:
+                sw = w
+                swr = w * ratio[r]
+            else:
+                sw += w
+                swr += w * ratio[r]
+        out[i] = swr / sw
+    return out
 
 
 def thin_references(uv: np.ndarray, cell: float) -> np.ndarray:
