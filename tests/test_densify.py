@@ -41,3 +41,16 @@ def test_fewer_references_than_neighbours_and_a_flag_vote():
     got = densify.propagate_ratio(ref_uv, np.full(2, 2.0), flags, q, np.full(2, 2.0), K, k=4)
     np.testing.assert_array_equal(got, _numpy_idw(ref_uv, np.full(2, 2.0), flags, q, np.full(2, 2.0), K, 4))
     assert got[0] > 0.5 > got[1]
+
+
+@pytest.mark.parametrize("cell", [2, 4, 8])
+def test_one_representative_per_cell_as_the_row_wise_unique_gives(cell):
+    rng = np.random.default_rng(cell)
+    q = np.c_[rng.integers(0, 30, 20000), rng.uniform(-5, 330, 20000), rng.uniform(-5, 245, 20000)]
+    key = np.stack([q[:, 0], np.round(q[:, 1] / cell), np.round(q[:, 2] / cell)], 1).astype(np.int64)
+    ref = np.sort(np.unique(key, axis=0, return_index=True)[1])  # the first track of each (frame, cell) key
+    got = densify.cell_representatives(q, cell)
+    assert len(ref) < len(q)
+    np.testing.assert_array_equal(got, ref)
+    assert len(densify.cell_representatives(q[:0], cell)) == 0
+    np.testing.assert_array_equal(densify.cell_representatives(q, 1), np.arange(len(q)))
