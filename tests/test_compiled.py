@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
-from trackingworld.optim import ba_blocks, densify, rigid, stage2, static_fit
+from trackingworld.optim import ba_blocks, densify, photo_static, rigid, stage2, static_fit
 from trackingworld.optim.point_fit import fit_and_score
 from trackingworld.optim.static_tests import fits_static
 
@@ -189,7 +189,8 @@ def test_the_warm_up_compiles_every_kernel_the_pipeline_calls():
 
     assert warmup.warm() > 0
     kernels = (point_fit._fit_and_score, ba_blocks._blocks, ba_blocks._cost, ba_blocks._reduce, ba_blocks._coupling,
-               ba_blocks._subtract_pairs, ba_blocks._back, static_fit._fit_points, densify._idw)
+               ba_blocks._subtract_pairs, ba_blocks._back, static_fit._fit_points, densify._idw,
+               photo_static._project_and_test_kernel)
     assert all(k.signatures for k in kernels)
 
 

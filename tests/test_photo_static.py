@@ -225,3 +225,31 @@ def test_photo_rescue_leaves_a_tracked_sliding_texture_dynamic_by_default():
                                      dynamic, xyz, {})[2])
     assert OptimConfig().photo_static_track_px == 2.0
     assert found[0.0] > 0.9 * n and found[2.0] < 0.05 * n
+
+
+@pytest.mark.parametrize("depth_kind", [None, "float32", "float64"])
+def test_the_compiled_projection_test_gives_numpys_pixels_and_flags(depth_kind):
+    from scipy.spatial.transform import Rotation
+
+    from trackingworld.optim import photo_static as ps
+
+    rng = np.random.default_rng(7)
+    H, W = 60, 80
+    K = np.array([[70.0, 0.0, 40.2], [0.0, 68.0, 29.7], [0.0, 0.0, 1.0]])
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.05, -0.1, 0.02]).as_matrix()
+    T[:3, 3] = [0.1, -0.05, 0.2]
+    X = rng.uniform([-3, -2, -1], [3, 2, 6], (20000, 3))
+    # points that land on the image's corners and edges exactly, and at the camera's centre plane
+    corners = np.array([[0.0, 0.0], [W - 1, H - 1], [W - 1, 0.0], [-1e-3, 5.0], [W - 1 + 1e-3, 5.0]])
+    cam = np.c_[(corners - K[:2, 2]) / np.diag(K)[:2] * 2.0, np.full(len(corners), 2.0)]
+    Tinv = np.linalg.inv(T)
+    X[: len(corners)] = cam @ Tinv[:3, :3].T + Tinv[:3, 3]
+    X[len(corners):len(corners) + 3] = Tinv[:3, 3]  # the camera centre: z = 0
+    open_t = rng.random((H, W)) < 0.7
+    depth = None if depth_kind is None else rng.uniform(0.5, 6, (H, W)).astype(depth_kind)
+    uv, tested = ps._project_and_test(X, T, K, open_t, depth, 0.9)
+    uv_ref, tested_ref = ps._project_and_test_numpy(X, T, K, open_t, depth, 0.9)
+    np.testing.assert_array_equal(uv, uv_ref)
+    np.testing.assert_array_equal(tested, tested_ref)
+    assert uv.dtype == np.float32 and 0.02 < tested.mean() < 0.5

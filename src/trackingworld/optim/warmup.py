@@ -1,10 +1,10 @@
 """Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
-:mod:`trackingworld.optim.static_fit` and the weighted mean of :mod:`trackingworld.optim.densify` on their first call
-and caches the machine code beside the package; without this step the first run on a machine pays that compile
-(about 25 s on a 2-core CPU) in the middle of its optimisation. Each kernel is called here once on a tiny problem, with
-the argument types the pipeline calls it with.
+:mod:`trackingworld.optim.static_fit`, the weighted mean of :mod:`trackingworld.optim.densify` and the projections
+of :mod:`trackingworld.optim.photo_static` on their first call and caches the machine code beside the package;
+without this step the first run on a machine pays that compile (about 25 s on a 2-core CPU) in the middle of its
+optimisation. Each kernel is called here once on a tiny problem, with the argument types the pipeline calls it with.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 def warm() -> float:
     """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
     took."""
-    from trackingworld.optim import ba_blocks, densify, point_fit, static_fit
+    from trackingworld.optim import ba_blocks, densify, photo_static, point_fit, static_fit
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -42,6 +42,9 @@ def warm() -> float:
     for dc_weight in (None, np.ones(len(pt))):  # the static tests' fits (float32), with and without depth weights
         static_fit.fit_points(R, t, K, pt, fr, uv[pt, fr], depth[pt, fr], N, weights, dc_weight=dc_weight)
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
+    open_t = np.ones((240, 320), bool)
+    for video_depth in (None, np.full((240, 320), 3.0, np.float32)):  # the photometric tests' projections
+        photo_static._project_and_test(X, np.eye(4), K, open_t, video_depth, 0.9)
     return time.perf_counter() - t0
 
 
