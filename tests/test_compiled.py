@@ -190,7 +190,7 @@ def test_the_warm_up_compiles_every_kernel_the_pipeline_calls():
     assert warmup.warm() > 0
     kernels = (point_fit._fit_and_score, ba_blocks._blocks, ba_blocks._cost, ba_blocks._reduce, ba_blocks._coupling,
                ba_blocks._subtract_pairs, ba_blocks._back, static_fit._fit_points, densify._idw,
-               photo_static._project_and_test_kernel)
+               photo_static._project_and_test_kernel, densify._thin_kernel)
     assert all(k.signatures for k in kernels)
 
 

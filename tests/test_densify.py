@@ -54,3 +54,22 @@ def test_one_representative_per_cell_as_the_row_wise_unique_gives(cell):
     np.testing.assert_array_equal(got, ref)
     assert len(densify.cell_representatives(q[:0], cell)) == 0
     np.testing.assert_array_equal(densify.cell_representatives(q, 1), np.arange(len(q)))
+
+
+@pytest.mark.parametrize("dtype,cell,with_member", [(np.float32, 4.0, False), (np.float32, 3.0, True),
+                                                    (np.float64, 2.5, True)])
+def test_the_thinned_observations_are_the_frame_by_frame_numpy_ones(dtype, cell, with_member):
+    rng = np.random.default_rng(int(cell * 10))
+    N, T = 5000, 6
+    uv = rng.uniform([-3, -3], [200, 120], (N, T, 2)).astype(dtype)
+    uv[:50] = np.round(uv[:50])  # on cell borders too
+    vis = rng.random((N, T)) < 0.6
+    vis[:, 2] = False  # a frame no track is seen in
+    member = rng.random(N) < 0.5 if with_member else None
+    got = densify.thinned_observations(uv, vis, cell, member)
+    ref = densify.thinned_observations_numpy(uv, vis, cell, member)
+    for a, b in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(a, b)
+    n, t = got
+    assert 2 not in t and len(n) < vis.sum() and (np.diff(t) >= 0).all()
+    assert member is None or member[n].all()

@@ -147,7 +147,19 @@ def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float,
     """Visible observations of tracks ``uv [N,T,2]`` / ``vis [N,T]`` thinned to one per ``cell`` px square of
     each frame: (track [R], frame [R]) index arrays in frame order. What the video depth needs of a dense set
     of tracks, whose visible observations grow faster than the frames times the pixels. ``member`` [N] bool:
-    of those tracks only (the same as passing them copied out, in the same order, without the copy)."""
+    of those tracks only (the same as passing them copied out, in the same order, without the copy). Compiled for
+    float pixels and ``cell`` > 1 (:func:`_thin_kernel`: the same observations as :func:`thinned_observations_numpy`,
+    the reference; 747,490 random tracks x 30 frames, cell 4 px: 1.2-1.9 -> 0.5-0.8 s a call, measured beside
+    another run)."""
+    if cell > 1 and uv.dtype in (np.float32, np.float64):
+        keep = np.ones(len(vis), bool) if member is None else np.asarray(member, bool)
+        return _thin_kernel(uv, vis, keep, uv.dtype.type(cell))
+    return thinned_observations_numpy(uv, vis, cell, member)
+
+
+def thinned_observations_numpy(uv: np.ndarray, vis: np.ndarray, cell: float,
+                               member: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`thinned_observations` in numpy, frame by frame (the reference of :func:`_thin_kernel`)."""
     n_out, t_out = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]: a frame's flags in one contiguous read
     if member is not None:
@@ -158,6 +170,57 @@ def thinned_observations(uv: np.ndarray, vis: np.ndarray, cell: float,
         n_out.append(v)
         t_out.append(np.full(len(v), t))
     return np.concatenate(n_out), np.concatenate(t_out)
+
+
+@njit(cache=True, error_model="numpy")
+def _thin_kernel(uv, vis, member, cell):
+    """:func:`thinned_observations` in two passes over the tracks in their memory order: each visible member's cell
+    ``floor(uv / cell)`` in the pixels' precision (``cell`` of uv's dtype, as numpy divides them), the smallest
+    track index of each occupied cell of each frame, the cells in row-major order. uv [N,T,2], vis [N,T], member
+    [N] bool."""
+    N, T = vis.shape
+    big = np.iinfo(np.int64).max
+    x0 = np.full(T, big, np.int64)
+    y0 = np.full(T, big, np.int64)
+    x1 = np.full(T, -big, np.int64)
+    y1 = np.full(T, -big, np.int64)
+    for n in range(N):  # each frame's range of cells
+        if not member[n]:
+            continue
+        for t in range(T):
+            if vis[n, t]:
+                cx = math.floor(uv[n, t, 0] / cell)
+                cy = math.floor(uv[n, t, 1] / cell)
+                x0[t], x1[t] = min(x0[t], cx), max(x1[t], cx)
+                y0[t], y1[t] = min(y0[t], cy), max(y1[t], cy)
+    nx = np.where(x1 >= x0, x1 - x0 + 1, 0)
+    start = np.zeros(T + 1, np.int64)
+    for t in range(T):
+        start[t + 1] = start[t] + (nx[t] * (y1[t] - y0[t] + 1) if nx[t] > 0 else 0)
+    first = np.full(start[T], -1, np.int64)
+    for n in range(N):  # the tracks in index order: the first to reach a cell is its smallest index
+        if not member[n]:
+            continue
+        for t in range(T):
+            if vis[n, t]:
+                key = start[t] + (math.floor(uv[n, t, 1] / cell) - y0[t]) * nx[t] + (math.floor(uv[n, t, 0] / cell)
+                                                                                      - x0[t])
+                if first[key] < 0:
+                    first[key] = n
+    r = 0
+    for k in range(len(first)):
+        if first[k] >= 0:
+            r += 1
+    out_n = np.empty(r, np.int64)
+    out_t = np.empty(r, np.int64)
+    r = 0
+    for t in range(T):  # frame by frame, each frame's cells in row-major order
+        for k in range(start[t], start[t + 1]):
+            if first[k] >= 0:
+                out_n[r] = first[k]
+                out_t[r] = t
+                r += 1
+    return out_n, out_t
 
 
 def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray,

@@ -1,10 +1,11 @@
 """Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
-:mod:`trackingworld.optim.static_fit`, the weighted mean of :mod:`trackingworld.optim.densify` and the projections
-of :mod:`trackingworld.optim.photo_static` on their first call and caches the machine code beside the package;
-without this step the first run on a machine pays that compile (about 25 s on a 2-core CPU) in the middle of its
-optimisation. Each kernel is called here once on a tiny problem, with the argument types the pipeline calls it with.
+:mod:`trackingworld.optim.static_fit`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify` and
+the projections of :mod:`trackingworld.optim.photo_static` on their first call and caches the machine code beside
+the package; without this step the first run on a machine pays that compile (about 25 s on a 2-core CPU) in the
+middle of its optimisation. Each kernel is called here once on a tiny problem, with the argument types the
+pipeline calls it with.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ def warm() -> float:
     for dc_weight in (None, np.ones(len(pt))):  # the static tests' fits (float32), with and without depth weights
         static_fit.fit_points(R, t, K, pt, fr, uv[pt, fr], depth[pt, fr], N, weights, dc_weight=dc_weight)
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
+    densify.thinned_observations(uv, vis, 4.0)  # the video depth's references
     open_t = np.ones((240, 320), bool)
     for video_depth in (None, np.full((240, 320), 3.0, np.float32)):  # the photometric tests' projections
         photo_static._project_and_test(X, np.eye(4), K, open_t, video_depth, 0.9)
