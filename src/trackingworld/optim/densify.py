@@ -30,7 +30,7 @@ def cell_representatives(queries: np.ndarray, cell: int) -> np.ndarray:
     if not len(key):
         return np.zeros(0, np.int64)
     # the rows as one int64 each, in the rows' lexicographic order: np.unique of a 1-D array instead of its
-    # row-wise sort (the same first indices; 747,490 tracks: 0.31 -> 0.05 s)
+    # row-wise sort (the same first indices; 747,490 random queries: 1.13 -> 0.16 s, measured beside another run)
     key -= key.min(0)
     span = key.max(0) + 1
     if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:

@@ -83,11 +83,7 @@ def _look(X: np.ndarray, colour: np.ndarray, blur_t: np.ndarray, open_t: np.ndar
     [n,2] px in this frame, whether they are seen there [n] bool, a distance px) a point whose track is seen more than
     that distance from its projection matches only where the projection's colour is nearer the query colour than
     the track's own pixel's is)."""
-    if X.dtype == w2c_t.dtype == np.float64 and (depth_t is None or depth_t.dtype in (np.float32, np.float64)):
-        uv, tested = _project_and_test(X, np.ascontiguousarray(w2c_t), np.asarray(K, np.float64), open_t,
-                                       depth_t, float(in_front))
-    else:
-        uv, tested = _project_and_test_numpy(X, w2c_t, K, open_t, depth_t, in_front)
+    uv, tested = _project_and_test(X, w2c_t, K, open_t, depth_t, in_front)
     idx = np.flatnonzero(tested)
     matched = np.zeros(len(X), bool)
     diff = np.abs(sample_image(blur_t, uv[idx]).astype(np.float32) - colour[idx]).max(1)
@@ -154,12 +150,16 @@ def _project_and_test_kernel(X, T, k, open_t, depth_t, has_depth, in_front):
 
 
 def _project_and_test(X, w2c_t, K, open_t, depth_t, in_front):
-    """:func:`_look`'s projections (float32 [n,2] px) and which of them are tested [n] bool, by
-    :func:`_project_and_test_kernel` (the numpy version's transform, projection and pixel lookups made [n,3]
-    temporaries of every point in every tested frame: about 4 of the 6 s the two photometric tests took at 854x480)."""
+    """:func:`_look`'s projections (float32 [n,2] px) and which of them are tested [n] bool: by
+    :func:`_project_and_test_kernel` for float64 points and pose (the pipeline's), else by the numpy reference. The
+    numpy version makes [n,3] temporaries of every point in every tested frame; with the kernel the two
+    photometric stages took 7.6 -> 3.3 s at 854x480 (docs/speed.md, stop 71)."""
+    if not (X.dtype == w2c_t.dtype == np.float64 and (depth_t is None or depth_t.dtype in (np.float32, np.float64))):
+        return _project_and_test_numpy(X, w2c_t, K, open_t, depth_t, in_front)
     has_depth = depth_t is not None
     d = depth_t if has_depth else np.zeros((1, 1), np.float32)
-    return _project_and_test_kernel(np.ascontiguousarray(X), w2c_t, K, open_t, d, has_depth, in_front)
+    return _project_and_test_kernel(np.ascontiguousarray(X), np.ascontiguousarray(w2c_t), np.asarray(K, np.float64),
+                                    open_t, d, has_depth, float(in_front))
 
 
 def _tally(X: np.ndarray, qf: np.ndarray, colour: np.ndarray, blur: np.ndarray, open_: np.ndarray,

@@ -262,12 +262,17 @@ def _linearize(R, t, X, p: BAProblem, points_only: bool = False, focal: bool = F
     return Hcc, Hxx, Hcx, gc, gx, fb
 
 
+def _problem_args(p: BAProblem) -> tuple:
+    """The problem ``p`` as the compiled kernels take it: observations ``pt, fr``, ``uv``, ``depth``, ``K``, the
+    weights, ``offsets``, ``log_dc``, the kernel's focal length and the depth weights (arrays behind the tensors)."""
+    return (_np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), _np(p.K), (p.lambda_ba, p.lambda_dc, p.lambda_asap),
+            p.offsets, p.log_dc, None if p.kernel_focal is None else float(p.kernel_focal),
+            None if p.dc_weight is None else _np(p.dc_weight))
+
+
 def _kernel_args(R, t, X, p: BAProblem) -> tuple:
     """The arguments of :func:`trackingworld.optim.ba_blocks.linearize` and ``cost`` for the problem ``p``."""
-    return (_np(R), _np(t), _np(X), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), _np(p.K),
-            (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
-            None if p.kernel_focal is None else float(p.kernel_focal),
-            None if p.dc_weight is None else _np(p.dc_weight))
+    return (_np(R), _np(t), _np(X)) + _problem_args(p)
 
 
 def _linearize_compiled(R, t, X, p: BAProblem, points_only: bool):
@@ -681,11 +686,7 @@ def fit_points(R, t, p: BAProblem, iters: int = 6) -> torch.Tensor:
     objective, offsets eliminated): used to test tracks that did not take part in the bundle adjustment. On a CPU
     in float32 (the static tests') by the compiled kernel :func:`trackingworld.optim.static_fit.fit_points`."""
     if COMPILED and R.device.type == "cpu" and R.dtype == torch.float32:
-        return torch.from_numpy(static_fit.fit_points(
-            _np(R), _np(t), _np(p.K), _np(p.pt), _np(p.fr), _np(p.uv), _np(p.depth), p.n_points,
-            (p.lambda_ba, p.lambda_dc, p.lambda_asap), p.offsets, p.log_dc,
-            None if p.kernel_focal is None else float(p.kernel_focal),
-            None if p.dc_weight is None else _np(p.dc_weight), iters))
+        return torch.from_numpy(static_fit.fit_points(_np(R), _np(t), *_problem_args(p), p.n_points, iters))
     X = init_points(R, t, p)
     eye = torch.eye(3, dtype=X.dtype, device=X.device)
     for _ in range(iters):

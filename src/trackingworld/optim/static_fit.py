@@ -6,7 +6,8 @@ After stage 2 every track outside it is judged by its best static point with the
 a few Gauss-Newton steps on stage 2's objective with the offsets eliminated (the Huber kernels as IRLS weights),
 each a 3x3 system per track. The tests run in float32 (a threshold at epsilon = 0.1 m needs no more), and in
 torch each step is some forty operations over ``[M,3,3]`` arrays of every observation, which a CPU runs at the
-speed of its memory: at 854x480 these fits were the largest torch cost left in the run (about 12 s of 81). Here
+speed of its memory: at 854x480 these fits were the largest torch cost left in the run (12.2 s of the 78 s of
+optimisation in a profiled run). Here
 each track's few observations stay in cache through all its steps.
 
 Why float32 and the torch formulas operation by operation: the static tests decide labels at thresholds, and the
@@ -16,7 +17,9 @@ flipped verdict is chaotic (a rigid group's random draw of tracks). So this kern
 and its order of operations (each product and sum rounded to float32 as torch's are, the observations summed in
 their order as ``index_add_`` sums them, LU with partial pivoting as LAPACK's ``sgesv``), and differs from it only
 where torch's own kernels round differently (vectorised ``log``, the order inside a batched 3x3 product): points
-within a few float32 ulps, ``tests/test_compiled.py``. The torch function stays the reference and what CUDA and
+within a few float32 ulps, ``tests/test_compiled.py``. Hence also the point blocks' nine entries written out
+rather than their six of a symmetric matrix: torch's batched product rounds ``H[0,1]`` and ``H[1,0]`` apart.
+The torch function stays the reference and what CUDA and
 float64 run.
 
 Conventions as :mod:`trackingworld.optim.stage2`: world-to-camera ``R [T,3,3]``, ``t [T,3]`` (camera = R X + t,
@@ -66,15 +69,15 @@ def _solve3_lu(A, b):
 @njit(cache=True, error_model="numpy")
 def _fit_points(R, t, k, w, starts, fr, uv, depth, dcw, has_dcw, offsets, log_dc, iters):
     """The points (see :func:`fit_points`). float32 arrays throughout; ``k`` = fx, fy, cx, cy, the kernel's focal
-    (float32); ``w`` = lambda_ba, lambda_dc, lambda_asap, lambda_dc * (dc weight 1), M (float32), 2 * lambda_ba,
-    2 * max(lambda_dc, 1e-12) as float32, as torch converts each Python number it meets."""
+    (float32); ``w`` = lambda_ba, lambda_dc, lambda_asap, M, 2 * lambda_ba, 2 * max(lambda_dc, 1e-12) as float32,
+    as torch converts each Python number it meets. ``starts [N+1]``: each point's first observation."""
     N = len(starts) - 1
     X = np.zeros((N, 3), np.float32)
     f32 = np.float32
     zero, one, floor_z, tiny = f32(0.0), f32(1.0), f32(1e-3), f32(1e-12)
     damp, floor_s = f32(1e-6), f32(1e-30)
     fx, fy, cx, cy, kf = k[0], k[1], k[2], k[3], k[4]
-    lba, lasap, ldc1, Mf, two_lba, two_ldc = w[0], w[2], w[3], w[4], w[5], w[6]
+    lba, ldc, lasap, Mf, two_lba, two_ldc = w[0], w[1], w[2], w[3], w[4], w[5]
     den_uv = two_lba * kf  # (2 * lambda_ba) * kernel_f, a float32 product as in torch
     A = np.empty((3, 3), np.float32)  # each step's system
     b = np.empty(3, np.float32)
@@ -110,7 +113,7 @@ def _fit_points(R, t, k, w, starts, fr, uv, depth, dcw, has_dcw, offsets, log_dc
                     r2 = f32(math.log(z)) - f32(math.log(max(depth[m], floor_z)))
                 else:
                     r2 = y2 - depth[m]
-                ldc_m = ldc1 * dcw[m] if has_dcw else ldc1
+                ldc_m = ldc * dcw[m] if has_dcw else ldc
                 w_uv = one
                 w_d = one
                 if offsets:
@@ -165,32 +168,30 @@ def _fit_points(R, t, k, w, starts, fr, uv, depth, dcw, has_dcw, offsets, log_dc
     return X
 
 
-def fit_points(R: np.ndarray, t: np.ndarray, K: np.ndarray, pt: np.ndarray, fr: np.ndarray, uv: np.ndarray,
-               depth: np.ndarray, n_points: int, weights: tuple[float, float, float], offsets: bool = True,
-               log_dc: bool = True, kernel_focal: float | None = None, dc_weight: np.ndarray | None = None,
-               iters: int = 6) -> np.ndarray:
+def fit_points(R: np.ndarray, t: np.ndarray, pt: np.ndarray, fr: np.ndarray, uv: np.ndarray, depth: np.ndarray,
+               K: np.ndarray, weights: tuple[float, float, float], offsets: bool, log_dc: bool,
+               kernel_focal: float | None, dc_weight: np.ndarray | None, n_points: int, iters: int = 6) -> np.ndarray:
     """Every point's static fit with the poses held, in float32: ``[n_points,3]`` world metres. Poses ``R [T,3,3]``,
-    ``t [T,3]`` (world-to-camera), ``K [3,3]``, the observations' points and frames ``pt, fr [M]``, pixels
-    ``uv [M,2]``, depth targets ``depth [M]`` metres, per-observation depth weights ``dc_weight [M]`` (None: 1);
-    ``weights`` = lambda_ba, lambda_dc, lambda_asap; ``offsets``, ``log_dc``, ``kernel_focal`` (px, None: K's) and
-    ``iters`` as :func:`trackingworld.optim.stage2.fit_points`, whose numbers these are. A point without
-    observations is 0."""
+    ``t [T,3]`` (world-to-camera), the observations' points and frames ``pt, fr [M]``, pixels ``uv [M,2]``, depth
+    targets ``depth [M]`` metres, ``K [3,3]``, ``weights`` = lambda_ba, lambda_dc, lambda_asap; ``offsets``,
+    ``log_dc``, ``kernel_focal`` (px, None: K's), per-observation depth weights ``dc_weight [M]`` (None: 1) and
+    ``iters`` as :func:`trackingworld.optim.stage2.fit_points`, whose numbers these are (the problem's arguments in
+    the order of ``stage2._problem_args``). A point without observations is 0."""
     f32 = np.float32
     pt = np.asarray(pt, np.int64)
-    order = None
-    if len(pt) > 1 and np.any(pt[1:] < pt[:-1]):  # the observations by point, each point's in their order
-        order = np.argsort(pt, kind="stable")
-        pt, fr = pt[order], np.asarray(fr)[order]
-    take = (lambda a: a) if order is None else (lambda a: np.asarray(a)[order])  # noqa: E731
+    # the observations by point, each point's in their order (a problem of stage2.BAProblem.from_tracks already is)
+    order = np.argsort(pt, kind="stable") if len(pt) > 1 and np.any(pt[1:] < pt[:-1]) else slice(None)
     starts = np.zeros(n_points + 1, np.int64)
     np.cumsum(np.bincount(pt, minlength=n_points), out=starts[1:])
     K32 = np.asarray(K, f32)
     kf = np.sqrt(K32[0, 0] * K32[1, 1]) if kernel_focal is None else f32(kernel_focal)
     k = np.array([K32[0, 0], K32[1, 1], K32[0, 2], K32[1, 2], kf], f32)
     lba, ldc, lasap = weights
-    w = np.array([lba, ldc, lasap, ldc * 1.0, len(pt), 2 * lba, 2 * max(ldc, 1e-12)], f32)
+    w = np.array([lba, ldc, lasap, len(pt), 2 * lba, 2 * max(ldc, 1e-12)], f32)
     has_dcw = dc_weight is not None
-    dcw = np.ascontiguousarray(take(dc_weight), f32) if has_dcw else np.ones(1, f32)
+    dcw = np.ascontiguousarray(np.asarray(dc_weight)[order], f32) if has_dcw else np.ones(1, f32)
     return _fit_points(np.ascontiguousarray(R, f32), np.ascontiguousarray(t, f32), k, w, starts,
-                       np.ascontiguousarray(fr, np.int64), np.ascontiguousarray(take(uv), f32),
-                       np.ascontiguousarray(take(depth), f32), dcw, has_dcw, bool(offsets), bool(log_dc), int(iters))
+                       np.ascontiguousarray(np.asarray(fr)[order], np.int64),
+                       np.ascontiguousarray(np.asarray(uv)[order], f32),
+                       np.ascontiguousarray(np.asarray(depth)[order], f32), dcw, has_dcw, bool(offsets), bool(log_dc),
+                       int(iters))

@@ -41,7 +41,7 @@ def warm() -> float:
     for how in ("blas", "pairs"):
         ba_blocks.schur_step(*blocks, pt, fr, 1e-3, free, how)
     for dc_weight in (None, np.ones(len(pt))):  # the static tests' fits (float32), with and without depth weights
-        static_fit.fit_points(R, t, K, pt, fr, uv[pt, fr], depth[pt, fr], N, weights, dc_weight=dc_weight)
+        static_fit.fit_points(R, t, pt, fr, uv[pt, fr], depth[pt, fr], K, weights, True, True, None, dc_weight, N)
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
     densify.thinned_observations(uv, vis, 4.0)  # the video depth's references
     open_t = np.ones((240, 320), bool)
