@@ -9,7 +9,17 @@ from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
 from trackingworld.geometry import intrinsics_matrix
-from trackingworld.optim import ba_blocks, densify, photo_static, rigid, stage2, static_fit
+from trackingworld.optim import (
+    ba_blocks,
+    densify,
+    parallel,
+    photo_static,
+    point_fit,
+    ratio_field,
+    rigid,
+    stage2,
+    static_fit,
+)
 from trackingworld.optim.point_fit import fit_and_score
 from trackingworld.optim.static_tests import fits_static
 
@@ -190,7 +200,8 @@ def test_the_warm_up_compiles_every_kernel_the_pipeline_calls():
     assert warmup.warm() > 0
     kernels = (point_fit._fit_and_score, ba_blocks._blocks, ba_blocks._cost, ba_blocks._reduce, ba_blocks._coupling,
                ba_blocks._subtract_pairs, ba_blocks._back, static_fit._fit_points, densify._idw,
-               photo_static._project_and_test_kernel, densify._thin_kernel)
+               photo_static._project_and_test_kernel, densify._thin_kernel, ratio_field._normal_blocks,
+               ratio_field._reweight, ratio_field._field_at)
     assert all(k.signatures for k in kernels)
 
 
@@ -245,3 +256,43 @@ def test_the_static_tests_take_the_same_verdicts_as_the_torch_reference(monkeypa
     assert 0.2 < got[0].mean() < 0.9  # the third off the motion fails, as do some with the noisy target
     assert (got[0] != ref[0]).sum() <= 3
     np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=2e-6)
+
+
+def test_parts_cover_the_items_once_at_equal_cost_and_small_work_stays_whole():
+    cost = np.r_[0, np.cumsum(np.r_[np.ones(90), np.full(10, 9.0)])]  # the last tenth of the items costs half
+    b = parallel.part_bounds(cost, 2, 1.0)
+    assert b.tolist() == [0, 90, 100]
+    assert parallel.part_bounds(cost, 4, 1000.0).tolist() == [0, 100]  # cheaper than a part: one
+    assert parallel.part_bounds(np.zeros(1), 4, 1.0).tolist() == [0, 0]  # no items: one empty part
+    b = parallel.part_bounds(np.arange(8), 16, 1.0)  # more threads than items: one item a part at most
+    assert b[0] == 0 and b[-1] == 7 and np.all(np.diff(b) >= 1)
+    seen = parallel.in_parts(lambda lo, hi: list(range(lo, hi)), parallel.part_bounds(np.arange(1001), 3, 1.0))
+    assert sum(seen, []) == list(range(1000)) and len(seen) == 3
+
+
+def test_the_kernels_split_among_threads_give_the_same_numbers_to_the_bit(monkeypatch):
+    """The track fits, the static fits and the fields' normal equations in parts on threads against one part."""
+    uv, vis, target, K, R, t = _problem(seed=8, n=3000, T=12)
+    rows = np.arange(0, 3000, 2)
+    p, Rs, ts = _static_problem(9, 3000, 12, OptimConfig())
+    rng = np.random.default_rng(1)
+    samples = [(rng.uniform([0, 0], [319, 239], (n, 2)), rng.normal(0, 0.05, n)) for n in (900, 0, 2500, 40)]
+    samples[1] = None
+
+    def run():
+        return (fit_and_score(R, t, K, uv, target, vis, (1.0, 1.0, 5.0), rows=rows), stage2.fit_points(Rs, ts, p),
+                [f.values if f is not None else None for f in ratio_field.fit_log_fields(samples, (240, 320),
+                                                                                       temporal=1.0)])
+
+    monkeypatch.setattr(parallel, "_cap", 1)
+    one = run()
+    monkeypatch.setattr(parallel, "_cap", 3)
+    monkeypatch.setattr(point_fit, "MIN_PART_ROWS", 10)
+    monkeypatch.setattr(static_fit, "MIN_PART_OBS", 10)
+    monkeypatch.setattr(ratio_field, "MIN_PART_SAMPLES", 10)
+    assert parallel.worker_threads() > 1 or parallel.cpu_count() == 1
+    three = run()
+    for a, b in zip(one[0], three[0], strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert torch.equal(one[1], three[1])
+    assert all((a is None and b is None) or np.array_equal(a, b) for a, b in zip(one[2], three[2], strict=True))

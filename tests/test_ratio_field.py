@@ -1,7 +1,14 @@
 import numpy as np
 import pytest
 
-from trackingworld.optim.ratio_field import _difference_operator, fit_log_field, fit_log_fields
+from trackingworld.optim.ratio_field import (
+    LogField,
+    _bilinear,
+    _block_tridiagonal_solve,
+    _difference_operator,
+    fit_log_field,
+    fit_log_fields,
+)
 
 H, W = 240, 320
 
@@ -108,3 +115,62 @@ def test_the_thin_plate_penalty_leaves_planes_free_and_continues_the_slopes_into
     err = {o: np.median(np.abs(fit_log_fields([(uv, val)], (H, W), (8, 6), 0.001, order=o)[0](q) - warp(q)))
            for o in (1, 2)}
     assert err[2] < 0.7 * err[1]
+
+
+def _fields_numpy(samples, shape, cells=(8, 6), smooth=0.01, temporal=0.0, scale=0.02, iters=4, order=1):
+    """The numpy formulation the compiled fit replaced (stop 72): each frame's normal equations from one bincount
+    of its samples' node pairs, the Cauchy weights from numpy's residuals. Node values [T,m] (NaN rows: None)."""
+    T, m = len(samples), (cells[0] + 1) * (cells[1] + 1)
+    LtL = _difference_operator(cells, order)
+    frames, offsets = [], np.zeros(T)
+    for t, s in enumerate(samples):
+        if s is None or not len(s[1]):
+            frames.append(None)
+            continue
+        values = np.asarray(s[1], np.float64)
+        offsets[t] = float(np.median(values))
+        idx, w = _bilinear(s[0], shape, cells)
+        rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
+        frames.append((idx, w, values - offsets[t], rows, smooth * len(values) / m * LtL + 1e-9 * np.eye(m)))
+    counts = [len(f[2]) for f in frames if f is not None]
+    tau = temporal * float(np.mean(counts)) / m * (np.eye(m) - 1.0 / m) if temporal > 0 else None
+    robust = [None if f is None else np.ones(len(f[2])) for f in frames]
+    for _ in range(iters):
+        diag, rhs = np.tile(1e-9 * np.eye(m), (T, 1, 1)), np.zeros((T, m))
+        for t, f in enumerate(frames):
+            if f is not None:
+                idx, w, y, rows, pen = f
+                wr = w * robust[t][:, None]
+                diag[t] = np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m) + pen
+                rhs[t] = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
+        if tau is None:
+            x = np.linalg.solve(diag, rhs[..., None])[..., 0]
+        else:
+            diag += ((np.arange(T) > 0).astype(int) + (np.arange(T) < T - 1))[:, None, None] * tau
+            x = _block_tridiagonal_solve(diag, -tau, rhs)
+        for t, f in enumerate(frames):
+            if f is not None:
+                robust[t] = 1.0 / (1.0 + (((x[t][f[0]] * f[1]).sum(1) - f[2]) / scale) ** 2)
+    return np.where(np.array([f is None for f in frames])[:, None], np.nan, x), offsets
+
+
+@pytest.mark.parametrize("temporal,order", [(0.0, 1), (1.0, 1), (1.0, 2)])
+def test_the_compiled_fields_are_the_numpy_formulations_to_the_bit(temporal, order):
+    rng = np.random.default_rng(5)
+    samples = []
+    for n in (3000, 0, 800, 5000, 60):
+        uv = rng.uniform([-2, -2], [W + 1, H + 1], (n, 2)).astype(np.float32)  # float32 pixels, a few outside
+        samples.append((uv, warp(uv) + 0.01 * rng.standard_normal(n) + (rng.random(n) < 0.1) * 0.4))
+    samples.append(None)
+    ref, offsets = _fields_numpy(samples, (H, W), temporal=temporal, order=order)
+    got = fit_log_fields(samples, (H, W), temporal=temporal, order=order)
+    for t, f in enumerate(got):
+        assert (f is None) == np.isnan(ref[t]).all()
+        if f is not None:
+            assert np.array_equal(f.values, ref[t]) and f.offset == offsets[t]
+    q = np.r_[rng.uniform([-5, -5], [W + 5, H + 5], (4000, 2)), [[0, 0], [W - 1, H - 1], [W - 1, 0]]]
+    f = got[0]
+    idx, w = _bilinear(q, (H, W), f.cells)
+    assert np.array_equal(f(q), (f.values[idx] * w).sum(1) + f.offset)  # the field at pixels: numpy's sums
+    assert np.array_equal(f(q.astype(np.float32)), LogField(f.values, f.offset, f.shape, f.cells)(
+        q.astype(np.float32).astype(np.float64)))

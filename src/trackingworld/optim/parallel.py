@@ -1,4 +1,6 @@
-"""Loops over frames run on threads. The video depth's per-frame work is a kNN search (scipy's releases the GIL)
+"""Loops over frames, and compiled kernels' items (:func:`in_parts`), run on threads.
+
+The video depth's per-frame work is a kNN search (scipy's releases the GIL)
 and large numpy array operations (which release it too), so two frames on two cores overlap. Each frame writes its
 own slice of the output, so the result does not depend on the number of threads. Threads rather than processes:
 the arrays are shared, not copied. Stage 3's followers and the short tracks' vote, run the same way, measured no
@@ -9,15 +11,19 @@ share a machine."""
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import cv2
+import numpy as np
 import torch
 
 MAX_THREADS = 8
 _cap: int | None = None  # set_thread_cap's limit for this process (None: every CPU it may run on)
+_pool: ThreadPoolExecutor | None = None  # in_parts' threads, made on first use and kept
+_pool_lock = threading.Lock()
 
 
 def cpu_count() -> int:
@@ -54,6 +60,35 @@ def each_frame(work: Callable[[int], None], frames: Iterable[int], threads: int 
     with ThreadPoolExecutor(n) as pool:
         for _ in pool.map(work, frames):
             pass
+
+
+def part_bounds(cost: np.ndarray, parts: int, min_cost: float) -> np.ndarray:
+    """``[k+1]`` int: the bounds of at most ``parts`` contiguous parts of ``n`` items of cumulative cost ``cost
+    [n+1]`` (``cost[0] = 0``), cut where the cost reaches equal shares, each part costing at least ``min_cost``
+    (fewer parts where the whole costs less: one part ``[0, n]``)."""
+    n, total = len(cost) - 1, float(cost[-1])
+    k = int(max(1, min(parts, total // max(min_cost, 1e-300), n)))
+    if k == 1:
+        return np.array([0, n], np.int64)
+    cuts = np.searchsorted(cost, total * np.arange(1, k) / k)
+    return np.unique(np.r_[0, np.clip(cuts, 1, n - 1), n]).astype(np.int64)
+
+
+def in_parts(work: Callable[[int, int], object], bounds: np.ndarray) -> list:
+    """``[work(lo, hi)]`` for each part ``lo, hi`` of ``bounds`` (:func:`part_bounds`), in order, the parts at once:
+    the first in this thread, the others on a kept pool of threads. For compiled kernels that release the GIL
+    (numba's ``nogil``), each part reading shared inputs and writing only its own items, so that the result is
+    the same to the bit as one call over all of them, on any number of threads."""
+    global _pool
+    parts = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    if len(parts) == 1:
+        return [work(*parts[0])]
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(MAX_THREADS - 1, thread_name_prefix="tw-part")
+    rest = [_pool.submit(work, a, b) for a, b in parts[1:]]
+    first = work(*parts[0])
+    return [first] + [f.result() for f in rest]
 
 
 @contextmanager

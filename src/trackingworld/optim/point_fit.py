@@ -22,6 +22,9 @@ import numpy as np
 from numba import njit
 
 from trackingworld.optim.ba_blocks import camera_constants, camera_point, f64, i64
+from trackingworld.optim.parallel import in_parts, part_bounds, worker_threads
+
+MIN_PART_ROWS = 2000  # the fewest tracks worth a thread of their own (see fit_and_score)
 
 
 @njit(cache=True, error_model="numpy")
@@ -54,7 +57,7 @@ def _insertion_sort(v, n):
         v[k + 1] = x
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_dc, iters):
     """Every point's fit and scores (see :func:`fit_and_score`; ``k`` = fx, fy, cx, cy, the kernel's focal;
     ``weights`` = lambda_ba, lambda_dc, lambda_asap)."""
@@ -176,8 +179,13 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
     Returns (the points ``[n,3]``; the median and 80th percentile ``[n,2]`` px of their reprojection errors over
     those frames, inf for a track seen in fewer than 3; the median ``[n]`` of ``|log(camera depth / target)|``, NaN
     for a track seen in none)."""
-    rows = np.arange(len(vis)) if rows is None else rows
+    rows = i64(np.arange(len(vis)) if rows is None else rows)
     frames = np.arange(vis.shape[1]) if frames is None else frames
-    return _fit_and_score(f64(R), f64(t), camera_constants(K, kernel_focal), f64(uv), f64(depth),
-                          np.ascontiguousarray(vis, np.bool_), i64(rows), i64(frames), f64(weights), bool(offsets),
-                          bool(log_dc), int(iters))
+    args = (f64(R), f64(t), camera_constants(K, kernel_focal), f64(uv), f64(depth), np.ascontiguousarray(vis, np.bool_))
+    rest = (i64(frames), f64(weights), bool(offsets), bool(log_dc), int(iters))
+    # the tracks in parts on parallel threads: each one's fit is its own
+    parts = in_parts(lambda lo, hi: _fit_and_score(*args, rows[lo:hi], *rest),
+                     part_bounds(np.arange(len(rows) + 1), worker_threads(), MIN_PART_ROWS))
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate(a) for a in zip(*parts, strict=True))

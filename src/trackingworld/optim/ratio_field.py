@@ -15,9 +15,14 @@ smooth robustly with a bounded number of unknowns, which is why this is written 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
+from numba import njit
+
+from trackingworld.optim.parallel import in_parts, part_bounds, worker_threads
 
 
 @dataclass(frozen=True)
@@ -31,8 +36,9 @@ class LogField:
 
     def __call__(self, uv: np.ndarray) -> np.ndarray:
         """The field at pixels ``uv [Q,2]`` (x right, y down) -> ``[Q]`` (log units, like the samples)."""
-        idx, w = _bilinear(uv, self.shape, self.cells)
-        return (self.values[idx] * w).sum(1) + self.offset
+        p = np.ascontiguousarray(np.asarray(uv).reshape(-1, 2), np.float64)  # float32 pixels are exact in float64
+        return _field_at(p, np.ascontiguousarray(self.values, np.float64), float(self.offset), *self.shape,
+                         *self.cells)
 
     def image(self) -> np.ndarray:
         """The field at every pixel, ``[h,w]`` float32 (log units): the same values as calling it at the integer
@@ -66,6 +72,33 @@ def _bilinear(uv: np.ndarray, shape: tuple[int, int], cells: tuple[int, int]) ->
     idx = np.stack([j * nx + i, j * nx + i + 1, (j + 1) * nx + i, (j + 1) * nx + i + 1], 1)
     wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
     return idx, wts
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cell(u, n, g):
+    """A pixel coordinate ``u`` of an image ``n`` px across, on a grid of ``g`` cells: (its cell, the fraction
+    into it), as :func:`_bilinear` computes them (in float64, clipped inside the last cell)."""
+    x = min(max(u / max(n - 1, 1) * g, 0.0), g - 1e-9)
+    i = math.floor(x)
+    return int(i), x - i
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _field_at(uv, values, offset, h, w, gx, gy):
+    """``[Q]``: the field of node ``values`` and ``offset`` at pixels ``uv [Q,2]``, :func:`_bilinear`'s weights
+    summed in its order (the numpy code this replaced, to the bit)."""
+    out = np.empty(len(uv))
+    nx = gx + 1
+    for q in range(len(uv)):
+        i, fx = _cell(uv[q, 0], w, gx)
+        j, fy = _cell(uv[q, 1], h, gy)
+        k = j * nx + i
+        f = values[k] * ((1 - fx) * (1 - fy))
+        f += values[k + 1] * (fx * (1 - fy))
+        f += values[k + nx] * ((1 - fx) * fy)
+        f += values[k + nx + 1] * (fx * fy)
+        out[q] = f + offset
+    return out
 
 
 def _difference_operator(cells: tuple[int, int], order: int = 1) -> np.ndarray:
@@ -120,46 +153,88 @@ def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int]
     ``smooth`` (per sample of the average frame per node). A node that no sample of its frame reaches then takes
     its value from the neighbouring frames, where it may be seen, before its spatial neighbours. The system is
     block tridiagonal in time and is solved exactly by block elimination (T solves of the nodes' size);
-    ``temporal`` 0: each frame's block alone. ``order``: the smoothness penalty's (:func:`_difference_operator`)."""
+    ``temporal`` 0: each frame's block alone. ``order``: the smoothness penalty's (:func:`_difference_operator`).
+    Each frame's normal equations and reweighting are compiled (:func:`_normal_blocks`, :func:`_reweight`), the
+    frames shared among threads."""
     T = len(samples)
     m = (cells[0] + 1) * (cells[1] + 1)
     LtL = _difference_operator(cells, order)
-    frames = []  # per frame: (idx, w, y, rows, penalty) or None
-    offsets = np.zeros(T)
-    for t, s in enumerate(samples):
-        if s is None or not len(s[1]):
-            frames.append(None)
-            continue
-        values = np.asarray(s[1], np.float64)
-        offsets[t] = float(np.median(values))
-        idx, w = _bilinear(s[0], shape, cells)
-        rows = np.repeat(idx, 4, axis=1).ravel() * m + np.tile(idx, (1, 4)).ravel()
-        frames.append((idx, w, values - offsets[t], rows, smooth * len(values) / m * LtL + 1e-9 * np.eye(m)))
-    counts = [len(f[2]) for f in frames if f is not None]
-    if not counts:
+    present = np.array([s is not None and len(s[1]) > 0 for s in samples], bool)
+    if not present.any():
         return [None] * T
-    tau = temporal * float(np.mean(counts)) / m * (np.eye(m) - 1.0 / m) if temporal > 0 else None
-    robust = [None if f is None else np.ones(len(f[2])) for f in frames]
+    offsets = np.zeros(T)
+    pens = np.zeros((T, m, m))
+    counts = np.zeros(T, np.int64)
+    parts_idx, parts_w, parts_y = [], [], []
+    for t in np.flatnonzero(present):
+        values = np.asarray(samples[t][1], np.float64)
+        offsets[t] = float(np.median(values))
+        idx, w = _bilinear(samples[t][0], shape, cells)
+        parts_idx.append(idx)
+        parts_w.append(w)
+        parts_y.append(values - offsets[t])
+        counts[t] = len(values)
+        pens[t] = smooth * len(values) / m * LtL + 1e-9 * np.eye(m)
+    idx, w, y = np.concatenate(parts_idx), np.concatenate(parts_w), np.concatenate(parts_y)
+    start = np.zeros(T + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    tau = temporal * float(counts[present].mean()) / m * (np.eye(m) - 1.0 / m) if temporal > 0 else None
+    robust = np.ones(len(y))
+    bounds = part_bounds(start, worker_threads(), MIN_PART_SAMPLES)  # frames, by their samples
     x = np.zeros((T, m))
     for _ in range(max(iters, 1)):
         diag, rhs = np.tile(1e-9 * np.eye(m), (T, 1, 1)), np.zeros((T, m))
-        for t, f in enumerate(frames):
-            if f is not None:
-                idx, w, y, rows, pen = f
-                wr = w * robust[t][:, None]
-                diag[t] = np.bincount(rows, (wr[:, :, None] * w[:, None, :]).ravel(), m * m).reshape(m, m) + pen
-                rhs[t] = np.bincount(idx.ravel(), (wr * y[:, None]).ravel(), m)
+        in_parts(partial(_normal_blocks, idx, w, y, robust, start, m=m, diag=diag, rhs=rhs), bounds)
+        diag[present] += pens[present]
         if tau is None:
             x = np.linalg.solve(diag, rhs[..., None])[..., 0]
         else:
             links = (np.arange(T) > 0).astype(int) + (np.arange(T) < T - 1)  # neighbours in time
             diag += links[:, None, None] * tau
             x = _block_tridiagonal_solve(diag, -tau, rhs)
-        for t, f in enumerate(frames):
-            if f is not None:
-                r = (x[t][f[0]] * f[1]).sum(1) - f[2]
-                robust[t] = 1.0 / (1.0 + (r / scale) ** 2)
-    return [None if f is None else LogField(x[t], offsets[t], shape, cells) for t, f in enumerate(frames)]
+        x = np.ascontiguousarray(x)
+        in_parts(partial(_reweight, idx, w, y, x, start, scale=scale, robust=robust), bounds)
+    return [LogField(x[t], offsets[t], shape, cells) if present[t] else None for t in range(T)]
+
+
+MIN_PART_SAMPLES = 20000  # the fewest samples worth a thread of their own
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _normal_blocks(idx, w, y, robust, start, lo, hi, m, diag, rhs):
+    """The robustly weighted normal equations of the frames ``lo`` to ``hi - 1`` without their penalties, written
+    into ``diag [T,m,m]`` and ``rhs [T,m]``: samples ``start[t]`` to ``start[t + 1] - 1`` of frame t, their four
+    nodes ``idx [R,4]``, bilinear weights ``w [R,4]``, values ``y [R]`` (less the frame's median) and Cauchy weights
+    ``robust [R]``. The sums run in the order of a ``bincount`` over the samples' node pairs (the numpy code this
+    replaced), so the blocks are the same to the bit."""
+    for t in range(lo, hi):
+        if start[t + 1] == start[t]:
+            continue
+        A = diag[t].reshape(m * m)
+        A[:] = 0.0
+        b = rhs[t]
+        for r in range(start[t], start[t + 1]):
+            for a in range(4):
+                wra = w[r, a] * robust[r]
+                row = idx[r, a] * m
+                for c in range(4):
+                    A[row + idx[r, c]] += wra * w[r, c]
+        for r in range(start[t], start[t + 1]):
+            for a in range(4):
+                b[idx[r, a]] += (w[r, a] * robust[r]) * y[r]
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _reweight(idx, w, y, x, start, lo, hi, scale, robust):
+    """The Cauchy weights ``robust [R]`` of the samples of frames ``lo`` to ``hi - 1`` (see :func:`_normal_blocks`)
+    from their residuals to the fields ``x [T,m]``: 1 / (1 + (r / scale)^2)."""
+    for t in range(lo, hi):
+        for r in range(start[t], start[t + 1]):
+            f = x[t, idx[r, 0]] * w[r, 0]
+            for a in range(1, 4):
+                f += x[t, idx[r, a]] * w[r, a]
+            q = (f - y[r]) / scale
+            robust[r] = 1.0 / (1.0 + q * q)
 
 
 def _block_tridiagonal_solve(diag: np.ndarray, off: np.ndarray, rhs: np.ndarray) -> np.ndarray:
