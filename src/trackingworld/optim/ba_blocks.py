@@ -22,7 +22,6 @@ import math
 import numpy as np
 from numba import njit
 from scipy.linalg import cho_factor, cho_solve
-from scipy.linalg.blas import dsyrk
 from threadpoolctl import ThreadpoolController
 
 
@@ -73,7 +72,7 @@ def _huber(r, c):
     return r * r if r <= c else 2 * c * r - c * c
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _cost(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc):
     """The objective (see :func:`cost`)."""
     kf = k[4]
@@ -93,7 +92,7 @@ def _cost(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc):
     return total / M if M else math.nan
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _blocks(R, t, X, pt, fr, uv, depth, dcw, k, weights, offsets, log_dc, points_only):
     """The blocks (see :func:`linearize`; ``k`` = fx, fy, cx, cy, the kernel's focal; ``weights`` = lambda_ba,
     lambda_dc, lambda_asap; ``dcw [M]`` the depth term's factor per observation)."""
@@ -189,7 +188,7 @@ def cost(R: np.ndarray, t: np.ndarray, X: np.ndarray, pt: np.ndarray, fr: np.nda
     return _cost(*_arrays(R, t, X, pt, fr, uv, depth, K, weights, offsets, log_dc, kernel_focal, dc_weight))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _chol3(H, out):
     """``out [3,3]`` <- the lower Cholesky factor of ``H [3,3]``; False where H is not positive definite."""
     out[:] = 0.0
@@ -210,7 +209,7 @@ def _chol3(H, out):
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _chol3_solve(L, b, out):
     """``out [3]`` <- ``(L L^T)^-1 b`` for a lower triangular ``L [3,3]``."""
     y0 = b[0] / L[0, 0]
@@ -221,7 +220,7 @@ def _chol3_solve(L, b, out):
     out[0] = (y0 - L[1, 0] * out[1] - L[2, 0] * out[2]) / L[0, 0]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _damped(H, mu, out):
     """``out`` <- the square ``H`` damped as :func:`trackingworld.optim.stage2._damp`: ``mu`` times its diagonal
     plus 1e-12 times (1 + the diagonal's largest magnitude) added to the diagonal."""
@@ -233,7 +232,7 @@ def _damped(H, mu, out):
         out[i, i] += mu * H[i, i] + 1e-12 * (1 + top)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _apply(L, kind, b, out):
     """``out [3]`` <- ``Hxx^-1 b`` for a point block factored by :func:`_reduce` (``kind`` 0: ``L`` its Cholesky factor;
     1: ``L`` = V lam^-1/2 of its eigen-decomposition, so that the inverse is ``L L^T``)."""
@@ -248,7 +247,7 @@ def _apply(L, kind, b, out):
             out[j] += L[j, c] * s
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu, free):
     """The points eliminated from one damped step (see :func:`schur_step`): the whitened couplings ``G [M,6,3]``
     (one per observation, such that the reduced system is ``D - sum over points of G_m G_m'^T`` over each pair of
@@ -301,11 +300,11 @@ def _reduce(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu, free):
     return G, D, L, kind, y, rhs
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _coupling(G, pt, fr, N, T):
     """``B^T [6T, 3N]``: each observation's ``G`` at (its frame, its point), so that ``B^T B`` is the sum of
-    :func:`_reduce`'s pairs (a point has one observation per frame: each block is written once). ``B`` itself is
-    its transpose, in the column-major order BLAS takes without a copy."""
+    :func:`_reduce`'s pairs (a point has one observation per frame: each block is written once); ``B^T B`` is
+    then numpy's product of it with its transpose."""
     Bt = np.zeros((6 * T, 3 * N))
     for m in range(len(pt)):
         i, f = pt[m], fr[m]
@@ -315,7 +314,7 @@ def _coupling(G, pt, fr, N, T):
     return Bt
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _subtract_pairs(G, pt, fr, N, A):
     """``A [6T,6T]`` minus, for every point and every pair of its observations ``m, m'`` in frames ``f >= f'``,
     ``G_m G_m'^T`` at block (f, f'): the lower triangle of ``A - B^T B`` (:func:`_coupling`) in the work of the
@@ -344,7 +343,7 @@ def _subtract_pairs(G, pt, fr, N, A):
                         A[r + a, c + b] -= g0 * G[m2, b, 0] + g1 * G[m2, b, 1] + g2 * G[m2, b, 2]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _back(L, kind, y, Hcx, dc, pt, fr):
     """The points' step ``dx [N,3]`` given the poses' ``dc [T,6]``: ``-Hxx^-1 (gx + sum Hcx^T dc)`` (``y`` =
     ``Hxx^-1 gx``)."""
@@ -393,8 +392,10 @@ def schur_step(Hcc, Hxx, Hcx, gc, gx, pt, fr, mu: float, free: np.ndarray, how: 
     N, T = len(Hxx), len(Hcc)
     with _blas_threads(1):
         if how == "blas":
-            B = _coupling(G, pt, fr, N, T).T
-            A -= dsyrk(1.0, B, trans=1, lower=1)  # B^T B, its lower triangle
+            Bt = _coupling(G, pt, fr, N, T)
+            # B^T B: numpy's product of an array with its transpose is BLAS's symmetric rank-k update, its lower
+            # triangle scipy's dsyrk's to the bit (this replaced it), and numpy lets go of the GIL in it
+            A -= Bt @ Bt.T
         else:
             _subtract_pairs(G, pt, fr, N, A)
         fixed = np.repeat(~free, 6)

@@ -31,6 +31,7 @@ poses camera-to-world ``[T,4,4]`` (OpenCV axes).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -253,14 +254,16 @@ def object_positions(P: np.ndarray, to_world: np.ndarray) -> np.ndarray:
 
 def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.ndarray, poses: np.ndarray,
                  K: np.ndarray, qf: np.ndarray, cfg, s: RigidSettings, log=None, dtype=torch.float64,
-                 device="cpu", size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                 device="cpu", size: tuple[int, int] | None = None,
+                 into: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """World positions ``[N,T,3]`` of dynamic tracks with every rigidly moving group placed by its rigid motion
     (stage 3's ``xyz [N,T,3]`` elsewhere; the module docstring says how groups are found). ``uv [N,T,2]``,
     ``vis [N,T]``, ``target [N,T]`` stage 3's depth targets (metres), ``qf [N]`` query frames, ``cfg`` the
     optimiser's config (the fit's weights and kernels), ``size`` the image's (W, H), which the joining of groups
     across a gap needs (``s.bridge``; :mod:`trackingworld.optim.rigid_bridge`). Returns the positions, each track's
-    group ``[N]`` (-1: none; the group found first, where groups were joined) and counts."""
-    out = xyz.copy()
+    group ``[N]`` (-1: none; the group found first, where groups were joined) and counts. ``into``: called once the
+    groups are found, the ``[N,T,3]`` array the groups' positions are written into and returned (None: a copy of
+    ``xyz``); ``xyz`` is read only at the visible frames and the query frames."""
     N, T = vis.shape
     target = np.ascontiguousarray(target, np.float64)  # once, not at each membership test (optim.point_fit)
     z = camera_depths(xyz, poses)
@@ -387,6 +390,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         n = len(objects)
         objects = bridge(objects, uv, vis, xyz, poses, K, size, s.bridge, log)
         info["rigid_joined"] = n - len(objects)
+    out = xyz.copy() if into is None else into()
     for o in objects:
         groups[o.members] = groups[o.members].min()
         pos = object_positions(o.points, o.motion)

@@ -6,6 +6,7 @@ metres, world positions ``[N,T,3]`` metres, poses camera-to-world ``[T,4,4]``.""
 from __future__ import annotations
 
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -22,21 +23,23 @@ from trackingworld.tracking2d.base import hold_invisible
 
 
 def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: OptimConfig, dtype, device, log,
-                  info: dict, thinned=None) -> np.ndarray | None:
+                  info: dict, thinned=None, defer_carry: bool = False):
     """``xyz[dyn]`` (in place, every frame) <- stage 3's world positions of the dynamic tracks ``dyn`` (indices):
     solved over one control track per (query frame, ``dynamic_cell`` px) cell, the other visible observations
     following their controls' depth correction, the hidden frames carried (or held). ``static`` (indices): the
     static tracks whose field sets the depth target; ``queries [N,3]`` (frame, x, y); ``D`` the prior at the tracks,
     ``prior [T,h,w]`` its maps; ``thinned``: the static tracks' thinned observations when already made
-    (:func:`~trackingworld.pipeline.fields.reference_ratios`). Counts go to ``info``. Returns the depth target of
-    the dynamic tracks ``[len(dyn),T]`` metres (None without dynamic tracks)."""
+    (:func:`~trackingworld.pipeline.fields.reference_ratios`). Counts go to ``info``. Returns (the depth target of
+    the dynamic tracks ``[len(dyn),T]`` metres, None without dynamic tracks; None, or with ``defer_carry`` where
+    :func:`can_defer_carry` allows, the carrying of the hidden frames not yet done: a function that returns the
+    carried positions ``[len(dyn),T,3]``, for :func:`place_rigid` to run beside the rigid step)."""
     D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
     if cfg.dc_edge_sigma_px > 0 and len(dyn):
         D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
     target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
                            FieldSettings.stage3(cfg), thinned)
     if not len(dyn):
-        return None
+        return None, None
     qf = queries[:, 0].astype(np.int64)
     ctrl = cell_representatives(queries[dyn], cfg.dynamic_cell)
     cd = dyn[ctrl]
@@ -49,6 +52,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     follow[ctrl] &= ~obs
     moved = _follow_controls(uv, D, target, dyn, ctrl, obs, follow, xyz, poses, K, cfg.idw_k) if follow.any() \
         else xyz[dyn]
+    info["stage3_controls"] = int(len(ctrl))
+    info["stage3_observations"] = int(obs.sum())
     # hidden frames: carried by the neighbours' motion, or held (both read the visible frames only)
     if cfg.carry_k > 0:
         # the image motion's weight in the donors' search: the distance two tracks drift apart in
@@ -56,13 +61,26 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
         few = dyn[:: max(1, len(dyn) // 4000)]
         z = D3[few][vis[few]]
         scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
-        xyz[dyn] = carry_hidden(moved, vis[dyn], cfg.carry_k, cfg.carry_reach, uv=uv[dyn], motion_scale=scale,
+        vis_d, uv_d = vis[dyn], uv[dyn]
+
+        def carry():
+            return carry_hidden(moved, vis_d, cfg.carry_k, cfg.carry_reach, uv=uv_d, motion_scale=scale,
                                 stat=cfg.carry_stat)
+
+        if defer_carry and can_defer_carry(vis_d, qf[dyn]):
+            xyz[dyn] = moved  # the visible frames, which the rigid step reads
+            return target, carry
+        xyz[dyn] = carry()
     else:
         xyz[dyn] = hold_invisible(moved, vis[dyn])
-    info["stage3_controls"] = int(len(ctrl))
-    info["stage3_observations"] = int(obs.sum())
-    return target
+    return target, None
+
+
+def can_defer_carry(vis: np.ndarray, qf: np.ndarray) -> bool:
+    """Whether the rigid step may run beside the carrying of the hidden frames with the same result: it reads the
+    positions of the tracks ``vis [n,T]`` in their visible frames, and at their query frames ``qf [n]``, which the
+    carrying leaves as they are where every track is seen in its query frame (a dense tracker's are)."""
+    return bool(vis[np.arange(len(qf)), qf].all())
 
 
 # torch threads of the rigid step on a CPU: its problems are small (a few hundred points, 6 unknowns per frame), and
@@ -71,19 +89,22 @@ RIGID_THREADS = 4
 
 
 def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict,
-                size: tuple[int, int] | None = None) -> None:
+                size: tuple[int, int] | None = None, carry=None) -> None:
     """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
-    image's (W, H), px)."""
+    image's (W, H), px). ``carry``: :func:`place_dynamic`'s deferred carrying of the hidden frames, run on a thread
+    beside the rigid step (which reads the visible frames only, :func:`can_defer_carry`), the groups' positions
+    then written into its result: the same numbers as the two one after the other, in the time of the longer."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
     settings = RigidSettings(ring_seeds=cfg.rigid_second_pass)
     if not cfg.rigid_bridge:
         settings.bridge = None
-    with torch_threads(RIGID_THREADS):
+    with torch_threads(RIGID_THREADS), ThreadPoolExecutor(1, thread_name_prefix="tw-carry") as pool:
+        into = None if carry is None else pool.submit(carry).result
         xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
                                         poses.astype(np.float64), K.astype(np.float64),
                                         queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device,
-                                        size)
+                                        size, into)
     info.update(counts)
 
 

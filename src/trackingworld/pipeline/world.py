@@ -254,14 +254,16 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             fits.refit(refit, vis, xyz, cfg.static_refit_dc, REFIT_ITERS)
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
+    rigid = cfg.rigid_movers and not cfg.no_dynamic_opt  # w/o D.O.T: no dynamic optimisation at all
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
-        target = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K, cfg, dtype,
-                               device, log, info, thinned)
-    if cfg.rigid_movers and not cfg.no_dynamic_opt and target is not None:  # w/o D.O.T: no dynamic optimisation at all
+        # with the rigid step, the hidden frames are carried beside it (its timing includes them)
+        target, carry = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K,
+                                      cfg, dtype, device, log, info, thinned, defer_carry=rigid)
+    if rigid and target is not None:
         with tm("rigid_movers"):
             place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info,
-                        (prior.shape[2], prior.shape[1]))
+                        (prior.shape[2], prior.shape[1]), carry)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
