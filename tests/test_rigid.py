@@ -220,3 +220,49 @@ def test_the_motion_that_places_a_group_is_fitted_to_that_group(monkeypatch):
         gaps[final] = max(abs(n - f) / f for n, f in zip(sizes, fitted, strict=True))
     assert gaps[0] > 0.1  # the case arises without the final rounds ...
     assert gaps[3] <= s.settle  # ... and with them each group's motion is fitted to it
+
+
+def test_the_rigid_step_reads_the_visible_frames_only_and_writes_into_the_carried_positions():
+    """What lets the carrying of the hidden frames run beside it (pipeline.dynamic.place_rigid): positions at the
+    hidden frames that differ change nothing the step finds, and its groups land in the array ``into`` gives."""
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True, seed=2)
+    rng = np.random.default_rng(3)
+    vis = rng.random(vis.shape) < 0.8
+    vis[np.arange(len(qf)), qf] = True  # seen in their query frames, as dense tracks are
+    target = z * 1.04
+    carried = _lift(uv, target, poses, K)  # the hidden frames as a carrying would leave them
+    before = carried.copy()
+    before[~vis] = 7.0  # ... and as they are before it
+    ref, groups, info = rigid_movers(uv, vis, target, carried, poses, K, qf, OptimConfig(), RigidSettings())
+    out, groups2, info2 = rigid_movers(uv, vis, target, before, poses, K, qf, OptimConfig(), RigidSettings(),
+                                       into=carried.copy)
+    assert info["rigid_groups"] >= 1 and info == info2
+    np.testing.assert_array_equal(groups, groups2)
+    np.testing.assert_array_equal(out, ref)
+    from trackingworld.pipeline.dynamic import can_defer_carry
+
+    assert can_defer_carry(vis, qf)
+    vis[0, qf[0]] = False
+    assert not can_defer_carry(vis, qf)
+
+
+def test_the_carrying_beside_the_rigid_step_gives_the_result_of_one_after_the_other(tiny_scene, tmp_path,
+                                                                                     monkeypatch):
+    from trackingworld.cli.main import main
+    from trackingworld.io.result import load_result
+    from trackingworld.pipeline import dynamic
+
+    inp = tiny_scene / "input"
+    args = ["run", str(inp / "frames"), "--depth", str(inp / "depth.npy"), "--masks", str(inp / "masks"),
+            "--intrinsics", str(inp / "intrinsics.txt"), "--quiet", "--out"]
+    calls = []
+    real = dynamic.can_defer_carry
+    monkeypatch.setattr(dynamic, "can_defer_carry", lambda *a: calls.append(real(*a)) or calls[-1])
+    assert main(args + [str(tmp_path / "beside")]) == 0
+    assert calls == [True]
+    monkeypatch.setattr(dynamic, "can_defer_carry", lambda *a: False)
+    assert main(args + [str(tmp_path / "after")]) == 0
+    a, b = load_result(tmp_path / "beside"), load_result(tmp_path / "after")
+    np.testing.assert_array_equal(a.is_dynamic, b.is_dynamic)
+    np.testing.assert_array_equal(a.visible, b.visible)
+    np.testing.assert_allclose(a.tracks_3d, b.tracks_3d, rtol=0, atol=1e-4)  # the run-to-run spread: 1e-4 m
