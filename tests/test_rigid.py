@@ -257,6 +257,7 @@ def test_the_carrying_beside_the_rigid_step_gives_the_result_of_one_after_the_ot
             "--intrinsics", str(inp / "intrinsics.txt"), "--quiet", "--out"]
     calls = []
     real = dynamic.can_defer_carry
+    monkeypatch.setattr(dynamic, "worker_threads", lambda: 2)  # beside it needs two threads (a one-CPU machine: not)
     monkeypatch.setattr(dynamic, "can_defer_carry", lambda *a: calls.append(real(*a)) or calls[-1])
     assert main(args + [str(tmp_path / "beside")]) == 0
     assert calls == [True]

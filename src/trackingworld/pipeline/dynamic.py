@@ -16,7 +16,7 @@ from trackingworld.geometry import camera_depths, focal_length, transform, unpro
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
-from trackingworld.optim.parallel import torch_threads
+from trackingworld.optim.parallel import torch_threads, worker_threads
 from trackingworld.optim.rigid import RigidSettings, rigid_movers
 from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
@@ -67,7 +67,7 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
             return carry_hidden(moved, vis_d, cfg.carry_k, cfg.carry_reach, uv=uv_d, motion_scale=scale,
                                 stat=cfg.carry_stat)
 
-        if defer_carry and can_defer_carry(vis_d, qf[dyn]):
+        if defer_carry and worker_threads() > 1 and can_defer_carry(vis_d, qf[dyn]):  # one thread: one at a time
             xyz[dyn] = moved  # the visible frames, which the rigid step reads
             return target, carry
         xyz[dyn] = carry()
