@@ -94,3 +94,29 @@ def test_priors_loaders(tmp_path):
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     with pytest.raises(InputError, match="bad.txt"):
         parse_intrinsics(tmp_path / "bad.txt")
+
+
+def test_large_arrays_deflated_in_parts_on_threads_read_back_the_same(tmp_path, monkeypatch):
+    import zipfile
+
+    from trackingworld.io import atomic
+    from trackingworld.optim import parallel
+
+    monkeypatch.setattr(atomic, "NPZ_PARALLEL_BYTES", 4096)  # every array but the small ones in parts ...
+    monkeypatch.setattr(atomic, "NPZ_PART", 1000)  # ... of 1,000 bytes (not a multiple of any item size)
+    monkeypatch.setattr(parallel, "worker_threads", lambda limit=8: 3)
+    rng = np.random.default_rng(0)
+    arrays = {"xyz": rng.standard_normal((500, 7, 3)).astype(np.float32), "vis": rng.random((900, 11)) < 0.5,
+              "conf": rng.random((300, 9)).astype(np.float16), "fortran": np.asfortranarray(rng.random((60, 50))),
+              "ids": np.arange(5000, dtype=np.int64), "small": np.arange(3.0), "scalar": np.float64(2.5)}
+    atomic.write_npz(tmp_path / "a.npz", **arrays)
+    with zipfile.ZipFile(tmp_path / "a.npz") as z:
+        assert z.testzip() is None  # every member's CRC and deflate stream
+    back = np.load(tmp_path / "a.npz")
+    assert sorted(back.files) == sorted(arrays)
+    for k, v in arrays.items():
+        assert back[k].dtype == np.asarray(v).dtype and np.array_equal(back[k], v)
+    monkeypatch.setattr(atomic, "NPZ_PARALLEL_BYTES", 1 << 62)  # numpy's own writer: the same arrays
+    atomic.write_npz(tmp_path / "b.npz", **arrays)
+    ref = np.load(tmp_path / "b.npz")
+    assert all(np.array_equal(ref[k], back[k]) for k in arrays)

@@ -70,6 +70,61 @@ def write_json(path: str | os.PathLike, obj) -> None:
 
 
 NPZ_COMPRESSLEVEL = 1  # deflate level: float arrays barely compress further, and level 6 costs ~4x the time
+# arrays of at least this many bytes are deflated in parts of NPZ_PART bytes on parallel threads (zlib lets go of
+# the GIL), the parts' streams joined into one, as pigz does: each part but the last ends on a sync flush, which
+# ends its blocks on a byte without ending the stream (a result of 30 frames at 854x480: docs/speed.md, stop 72)
+NPZ_PARALLEL_BYTES = 32 << 20
+NPZ_PART = 8 << 20
+
+
+class _Deflated:
+    """zipfile's compressor for a member whose deflate stream was made beforehand, part by part: ``compress`` is
+    handed the parts in order (zipfile sums their CRC and size) and returns each one's stream."""
+
+    def __init__(self, streams):
+        self._streams = iter(streams)
+
+    def compress(self, data) -> bytes:
+        return next(self._streams)
+
+    def flush(self) -> bytes:
+        return b""
+
+
+def _deflate_part(part: np.ndarray, last: bool) -> bytes:
+    """The raw deflate stream of ``part`` (uint8), ending the stream where ``last``, else on a sync flush."""
+    import zlib
+
+    c = zlib.compressobj(NPZ_COMPRESSLEVEL, zlib.DEFLATED, -15)
+    return c.compress(part) + c.flush(zlib.Z_FINISH if last else zlib.Z_SYNC_FLUSH)
+
+
+def _write_member(zf, name: str, value, compress: bool) -> None:
+    """One array as the member ``name`` of ``zf``, in numpy's .npy format; a large one deflated in parts on
+    threads (:data:`NPZ_PARALLEL_BYTES`) where zipfile's writer takes a compressor, else by numpy and zipfile."""
+    import io
+    from concurrent.futures import ThreadPoolExecutor
+
+    from trackingworld.optim.parallel import worker_threads
+
+    arr = np.asanyarray(value)
+    with zf.open(name, "w", force_zip64=True) as f:
+        threads = worker_threads()
+        if (not compress or arr.nbytes < NPZ_PARALLEL_BYTES or arr.dtype.hasobject or threads < 2
+                or not hasattr(f, "_compressor")):
+            np.lib.format.write_array(f, arr, allow_pickle=False)
+            return
+        arr = np.ascontiguousarray(arr)
+        head = io.BytesIO()
+        np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(arr))
+        raw = arr.reshape(-1).view(np.uint8)
+        parts = [np.frombuffer(head.getvalue(), np.uint8)] + [raw[i:i + NPZ_PART] for i in range(0, len(raw),
+                                                                                                   NPZ_PART)]
+        with ThreadPoolExecutor(threads, thread_name_prefix="tw-deflate") as pool:
+            f._compressor = _Deflated(pool.map(_deflate_part, parts, [k == len(parts) - 1 for k in
+                                                                       range(len(parts))]))
+            for part in parts:
+                f.write(part)
 
 
 def write_npz(path: str | os.PathLike, compress: bool = True, **arrays) -> None:
@@ -81,8 +136,7 @@ def write_npz(path: str | os.PathLike, compress: bool = True, **arrays) -> None:
         with zipfile.ZipFile(tmp, "w", compression=mode, compresslevel=NPZ_COMPRESSLEVEL if compress else None,
                              allowZip64=True) as zf:
             for key, value in arrays.items():
-                with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
-                    np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
+                _write_member(zf, f"{key}.npy", value, compress)
 
 
 def _json_default(o):
