@@ -197,7 +197,7 @@ def fit_log_fields(samples: list, shape: tuple[int, int], cells: tuple[int, int]
     return [LogField(x[t], offsets[t], shape, cells) if present[t] else None for t in range(T)]
 
 
-MIN_PART_SAMPLES = 20000  # the fewest samples worth a thread of their own
+MIN_PART_SAMPLES = 20000  # the fewest samples worth a thread of their own (a guess, not measured at its break-even)
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
