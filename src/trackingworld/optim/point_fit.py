@@ -24,9 +24,9 @@ from numba import njit
 from trackingworld.optim.ba_blocks import camera_constants, camera_point, f64, i64
 from trackingworld.optim.parallel import in_parts, part_bounds, worker_threads
 
-# the fewest tracks worth a thread of their own: alone, 200 tracks of 30 frames already ran 1.9x faster on two
-# threads, but in the rigid step (beside torch's threads) its 524 calls of 200-1,000 tracks gained nothing (0.82 ->
-# 0.80 s) and its 19 of more than 1,000 took 0.88 -> 0.52 s (docs/speed.md, stop 72)
+# the fewest tracks worth a thread of their own: alone, 200 tracks of 30 frames ran 1.1-1.9x faster on two
+# threads (two runs), but in the rigid step (beside torch's threads) its 524 calls of 200-1,000 tracks gained
+# nothing (0.82 -> 0.80 s) and its 19 of more than 1,000 took 0.88 -> 0.52 s (docs/speed.md, stop 72)
 MIN_PART_ROWS = 2000
 
 
