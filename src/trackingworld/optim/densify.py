@@ -11,6 +11,7 @@ the neighbours' 3D positions (the authors' rebuild) would blur detail below the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -72,7 +73,7 @@ def cell_cap_mask(uv: np.ndarray, vis: np.ndarray, query_frame: np.ndarray, cell
 def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray, query_uv: np.ndarray,
                     query_depth: np.ndarray, K: np.ndarray, k: int = 4, eps: float = 1e-3,
                     ref_colour: np.ndarray | None = None, query_colour: np.ndarray | None = None,
-                    colour_sigma: float = 0.0) -> np.ndarray:
+                    colour_sigma: float = 0.0, idx: np.ndarray | None = None) -> np.ndarray:
     """Inverse-distance-weighted ratio ``[Q]`` at query pixels of one frame.
 
     ref_uv [R,2] px, ref_depth [R] prior metres, ref_ratio [R]; query_uv [Q,2], query_depth [Q]. Neighbours
@@ -80,13 +81,12 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
     With ``colour_sigma`` > 0 and both colours given the weights are also multiplied by ``exp(-dc^2 / (2
     sigma^2))``, dc the largest RGB difference (grey levels) between ``query_colour [Q,3]`` and ``ref_colour
     [R,3]``: a joint-bilateral weight, for where the prior-lifted distance cannot tell the two sides of an edge
-    apart (its blur).
+    apart (its blur). ``idx [Q,k]``: the neighbours' indices when already searched (:func:`nearest_references`).
     """
     if len(ref_uv) == 0:
         return np.ones(len(query_uv))
     k = min(k, len(ref_uv))
-    _, idx = cKDTree(ref_uv).query(query_uv, k=k, workers=-1)
-    idx = idx.reshape(len(query_uv), k)
+    idx = nearest_references(ref_uv, query_uv, k, -1) if idx is None else idx.astype(np.int64, copy=False)
     P = unproject(query_uv, query_depth, K)
     Q = unproject(ref_uv, ref_depth, K)
     colour = colour_sigma > 0 and ref_colour is not None and query_colour is not None
@@ -98,6 +98,20 @@ def propagate_ratio(ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.nda
         dc = np.abs(query_colour[:, None].astype(np.float32) - ref_colour[idx].astype(np.float32)).max(-1)
         w = w * np.exp(-0.5 * (dc / colour_sigma) ** 2) + 1e-12  # every weight tiny: the plain mean
     return (w * ref_ratio[idx]).sum(1) / w.sum(1)
+
+
+def nearest_references(ref_uv: np.ndarray, query_uv: np.ndarray, k: int, workers: int = -1) -> np.ndarray:
+    """``[Q,k]`` int64: the indices of the ``k`` (at most ``len(ref_uv)``) references ``ref_uv [R,2]`` px nearest each
+    of ``query_uv [Q,2]`` px in the image, nearest first (scipy's kNN on ``workers`` threads: the same on any)."""
+    k = min(k, len(ref_uv))
+    _, idx = cKDTree(ref_uv).query(query_uv, k=k, workers=workers)
+    return idx.reshape(len(query_uv), k)
+
+
+def pixel_grid(h: int, w: int) -> np.ndarray:
+    """``[h*w,2]`` float64 (x, y) of every pixel of an ``h x w`` image, row by row."""
+    ys, xs = np.mgrid[0:h, 0:w]
+    return np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
 
 
 @njit(cache=True, error_model="numpy")
@@ -172,7 +186,7 @@ def thinned_observations_numpy(uv: np.ndarray, vis: np.ndarray, cell: float,
     return np.concatenate(n_out), np.concatenate(t_out)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _thin_kernel(uv, vis, member, cell):
     """:func:`thinned_observations` in two passes over the tracks in their memory order: each visible member's cell
     ``floor(uv / cell)`` in the pixels' precision (``cell`` of uv's dtype, as numpy divides them), the smallest
@@ -224,26 +238,41 @@ def _thin_kernel(uv, vis, member, cell):
 
 
 def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref_ratio: np.ndarray,
-               prior: np.ndarray, K: np.ndarray, k: int = 4, threads: int | None = None) -> np.ndarray:
+               prior: np.ndarray, K: np.ndarray, k: int = 4, threads: int | None = None,
+               neighbours: Callable[[int], np.ndarray | None] | None = None) -> np.ndarray:
     """Per-pixel scale ratio ``[T,H,W]`` from reference observations (frame [M] int, uv [M,2] px, depth [M]
     prior metres, ratio [M]; non-finite ratios are skipped; thin them first, :func:`thinned_observations`)
     over the prior ``[T,H,W]``: the appendix's consistent video depth is ``ratio * prior``. Frames without a
     reference keep ratio 1. The frames run on ``threads`` threads (``optim.parallel.each_frame``; the same maps
-    on any number; 30 frames at 854x480 from the same references: 9.4 s on one thread, 6.5 s on 2 cores)."""
+    on any number; 30 frames at 854x480 from the same references: 9.4 s on one thread, 6.5 s on 2 cores).
+    ``neighbours(t)``: frame ``t``'s kNN search when already done, the indices ``[H*W,k]`` among its references in
+    their order (:func:`pixel_neighbours`), or None (searched here); used only where every ratio is finite (else
+    the references it indexes are not the ones used)."""
     T, H, W = prior.shape
-    ys, xs = np.mgrid[0:H, 0:W]
-    pix = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+    pix = pixel_grid(H, W)
     out = np.ones((T, H, W), np.float32)
     ok = np.isfinite(ref_ratio)
+    if not ok.all():
+        neighbours = None
     frame, ref_uv, ref_depth, ref_ratio = frame[ok], ref_uv[ok], ref_depth[ok], ref_ratio[ok]
     order = np.argsort(frame, kind="stable")
     bounds = np.searchsorted(frame[order], np.arange(T + 1))
 
     def frame_map(t: int) -> None:
         v = order[bounds[t]:bounds[t + 1]]
+        idx = None if neighbours is None else neighbours(t)
         if len(v):
             out[t] = propagate_ratio(ref_uv[v], ref_depth[v], ref_ratio[v], pix, prior[t].ravel(), K,
-                                     k).reshape(H, W)
+                                     k, idx=idx).reshape(H, W)
 
     each_frame(frame_map, range(T), threads)
     return out
+
+
+def pixel_neighbours(ref_uv: np.ndarray, shape: tuple[int, int], k: int = 4, workers: int = 1) -> np.ndarray | None:
+    """One frame's kNN search of :func:`ratio_maps`, ahead of it: the indices ``[h*w,k]`` int32 of every pixel's
+    ``k`` nearest of the frame's references ``ref_uv [R,2]`` px (in their order); None where there are none. Int32
+    for half the memory (a frame of 854x480 pixels, k = 4: 6.6 MB)."""
+    if not len(ref_uv):
+        return None
+    return nearest_references(ref_uv, pixel_grid(*shape), k, workers).astype(np.int32)

@@ -91,6 +91,71 @@ def in_parts(work: Callable[[int, int], object], bounds: np.ndarray) -> list:
     return [first] + [f.result() for f in rest]
 
 
+_TAKEN = object()  # FramesAhead: a frame its caller took before the spare thread came to it
+_FAILED = object()  # ... and one whose work raised there (the caller does it again and meets the error itself)
+
+
+class FramesAhead:
+    """``work(t)`` of ``frames`` done ahead of time, one frame after another, by a spare thread (:meth:`run`), for
+    work whose inputs are ready before its caller is (the video depth's kNN search, beside the rigid-mover step).
+    Each frame is claimed once: :meth:`take` hands over a frame's result, waiting for it where the thread has the
+    frame in hand, and None where the thread never came to it (the caller then does that frame its own way); after
+    :meth:`stop` the thread claims no more. ``work`` must give what the caller would have worked out itself, so
+    that how many frames were done ahead changes nothing but the time."""
+
+    def __init__(self, work: Callable[[int], object], frames: Iterable[int]):
+        self._work = work
+        self._todo = list(frames)
+        self._next = 0
+        self._lock = threading.Lock()
+        self._state: dict[int, object] = {}  # frame -> Event while in hand, then its result (or _TAKEN / _FAILED)
+        self._stopped = False
+        self.done = 0  # frames the spare thread finished
+
+    def _claim(self):
+        with self._lock:
+            while not self._stopped and self._next < len(self._todo):
+                t = self._todo[self._next]
+                self._next += 1
+                if t not in self._state:
+                    self._state[t] = ev = threading.Event()
+                    return t, ev
+        return None
+
+    def run(self) -> None:
+        """Works out the frames no one has claimed, in order, until none is left or :meth:`stop` was called."""
+        while (claim := self._claim()) is not None:
+            t, ev = claim
+            try:
+                out = self._work(t)
+            except Exception:  # noqa: BLE001 - the caller does the frame again and meets the error itself
+                out = _FAILED
+            with self._lock:
+                self._state[t] = out
+                self.done += out is not _FAILED
+            ev.set()
+
+    def stop(self) -> None:
+        """No frame is claimed from now on (the one in hand is finished)."""
+        with self._lock:
+            self._stopped = True
+
+    def take(self, t: int):
+        """Frame ``t``'s result, once: waited for where the spare thread has it in hand; None where it never came to
+        it (or its work raised there)."""
+        with self._lock:
+            s = self._state.get(t)
+            if s is None:
+                self._state[t] = _TAKEN
+                return None
+        if isinstance(s, threading.Event):
+            s.wait()
+        with self._lock:
+            out = self._state[t]
+            self._state[t] = _TAKEN
+        return None if out is _TAKEN or out is _FAILED else out
+
+
 @contextmanager
 def torch_threads(limit: int) -> Iterator[None]:
     """torch's intra-op threads at most ``limit`` inside the block (restored after it). For work made of many

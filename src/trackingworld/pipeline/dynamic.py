@@ -89,22 +89,31 @@ RIGID_THREADS = 4
 
 
 def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict,
-                size: tuple[int, int] | None = None, carry=None) -> None:
+                size: tuple[int, int] | None = None, carry=None, beside=None) -> None:
     """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
     image's (W, H), px). ``carry``: :func:`place_dynamic`'s deferred carrying of the hidden frames, run on a thread
     beside the rigid step (which reads the visible frames only, :func:`can_defer_carry`), the groups' positions
-    then written into its result: the same numbers as the two one after the other, in the time of the longer."""
+    then written into its result: the same numbers as the two one after the other, in the time of the longer.
+    ``beside``: more work for that thread once the carrying is done, which reads nothing the step writes and is
+    left running when the step ends (the video depth's search ahead, ``pipeline.video_depth.SearchAhead.run``)."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
     settings = RigidSettings(ring_seeds=cfg.rigid_second_pass)
     if not cfg.rigid_bridge:
         settings.bridge = None
-    with torch_threads(RIGID_THREADS), ThreadPoolExecutor(1, thread_name_prefix="tw-carry") as pool:
-        into = None if carry is None else pool.submit(carry).result
-        xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64),
-                                        poses.astype(np.float64), K.astype(np.float64),
-                                        queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device,
-                                        size, into)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="tw-beside") if carry is not None or beside is not None else None
+    try:
+        with torch_threads(RIGID_THREADS):
+            into = None if carry is None else pool.submit(carry).result
+            if beside is not None:
+                pool.submit(beside)
+            xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target,
+                                            xyz[dyn].astype(np.float64), poses.astype(np.float64),
+                                            K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings,
+                                            note, dtype, device, size, into)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=False)  # the carrying was waited for (into); ``beside`` may go on
     info.update(counts)
 
 

@@ -78,16 +78,19 @@ def edge_free_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.
     return out
 
 
-def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0):
+def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0, observations=None):
     """The references of the appendix's scale propagation among ``tracks`` [n] (indices, a set: a cell keeps its
     lowest-index track; None: all), selected through a mask rather than copied out: one visible observation per
     ``cell`` px square of each frame, in frame order. Returns (track [R], frame [R], ratio [R] = camera z of its
-    world point / prior depth)."""
-    member = None
-    if tracks is not None:
-        member = np.zeros(len(vis), bool)
-        member[tracks] = True
-    n, t = thinned_observations(uv, vis, cell, member)
+    world point / prior depth). ``observations``: (track [R], frame [R]) when already thinned."""
+    if observations is not None:
+        n, t = observations
+    else:
+        member = None
+        if tracks is not None:
+            member = np.zeros(len(vis), bool)
+            member[tracks] = True
+        n, t = thinned_observations(uv, vis, cell, member)
     z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
     return n, t, z / np.maximum(D[n, t], 1e-6)
 

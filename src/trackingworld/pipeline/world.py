@@ -21,8 +21,9 @@ from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2
-from trackingworld.optim.densify import cell_cap_mask, cell_representatives, ratio_maps
+from trackingworld.optim.densify import cell_cap_mask, cell_representatives
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, depth_in_mask, label_tracks
+from trackingworld.optim.parallel import worker_threads
 from trackingworld.optim.stage1 import initial_poses
 from trackingworld.optim.static_tests import moving_tracks
 from trackingworld.pipeline.baseline import sample_colors
@@ -32,7 +33,6 @@ from trackingworld.pipeline.fields import (
     depth_mover_test,
     edge_free_prior,
     mover_range_px,
-    reference_ratios,
     static_fields,
 )
 from trackingworld.pipeline.inputs import Inputs, resize_stack
@@ -47,6 +47,7 @@ from trackingworld.pipeline.static_side import (
     rebuild_static,
     vote_short_tracks,
 )
+from trackingworld.pipeline.video_depth import SearchAhead, video_depth
 from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult
@@ -260,15 +261,17 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         # with the rigid step, the hidden frames are carried beside it (its timing includes them)
         target, carry = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K,
                                       cfg, dtype, device, log, info, thinned, defer_carry=rigid)
+    ahead = None  # the video depth's searches, which read only the 2D tracks, on the second core beside the step
     if rigid and target is not None:
+        if worker_threads() > 1:
+            ahead = SearchAhead(uv, vis, prior.shape[1:])
         with tm("rigid_movers"):
             place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info,
-                        (prior.shape[2], prior.shape[1]), carry)
+                        (prior.shape[2], prior.shape[1]), carry, None if ahead is None else ahead.run)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
-        n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses)
-        depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K) * prior
+        depth, info["video_depth_ahead_frames"] = video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)
     if cfg.photo_static_grey > 0 and frames is not None:
         with tm("photo_static"):
             # dynamic tracks that are static points dragged off by a mover's flow, found by their colours; last, so

@@ -1,0 +1,76 @@
+"""The appendix's consistent video depth: the raw prior's maps times a per-pixel scale ratio propagated from the
+tracks' visible observations (``optim.densify.ratio_maps``), and the part of it that needs only the 2D tracks done
+ahead of time on the second core while the rigid-mover step runs (:class:`SearchAhead`).
+
+Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, world positions ``[N,T,3]`` metres, poses camera-to-world
+``[T,4,4]``, the prior ``[T,h,w]`` metres."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from trackingworld.optim.densify import pixel_neighbours, ratio_maps, thinned_observations
+from trackingworld.optim.parallel import FramesAhead
+from trackingworld.pipeline.fields import reference_ratios
+
+CELL_PX = 4.0  # one reference observation per this many px square of each frame (reference_ratios' default)
+K_NEAREST = 4  # references per pixel
+# the most memory the neighbours searched ahead may hold (int32, k = 4: 6.6 MB a frame of 854x480 pixels, so 77
+# frames; the frames past it are searched when the video depth is made, as without the search ahead)
+AHEAD_BYTES = 512 * 2**20
+
+
+class SearchAhead:
+    """The video depth's work that reads only the 2D tracks ``uv [N,T,2]`` / ``vis [N,T]`` (which nothing changes
+    from the rigid-mover step on): the thinned reference observations, then frame by frame the kNN search of every
+    pixel of ``shape (h, w)`` among them, on a spare thread (:meth:`run`, one core's work). :func:`video_depth`
+    takes what is done and does the rest as it would have; the numbers are the same either way."""
+
+    def __init__(self, uv: np.ndarray, vis: np.ndarray, shape: tuple[int, int], budget_bytes: int = AHEAD_BYTES):
+        self._uv, self._vis, self._shape = uv, vis, shape
+        self._refs: tuple[np.ndarray, np.ndarray] | None = None
+        self._lock = threading.Lock()
+        per_frame = shape[0] * shape[1] * K_NEAREST * 4
+        self.frames = FramesAhead(self._search, range(min(vis.shape[1], budget_bytes // max(per_frame, 1))))
+
+    def references(self) -> tuple[np.ndarray, np.ndarray]:
+        """(track [R], frame [R]): the visible observations thinned to one per :data:`CELL_PX` square of each frame,
+        in frame order (``optim.densify.thinned_observations``), made once (waited for where in hand)."""
+        with self._lock:
+            if self._refs is None:
+                self._refs = thinned_observations(self._uv, self._vis, CELL_PX)
+            return self._refs
+
+    def _search(self, t: int) -> np.ndarray | None:
+        n, f = self.references()
+        rows = slice(*np.searchsorted(f, [t, t + 1]))
+        return pixel_neighbours(self._uv[n[rows], t], self._shape, K_NEAREST, workers=1)
+
+    def run(self) -> None:
+        """The references, then the frames' searches in order, until :meth:`stop` or the memory budget's last frame."""
+        self.references()
+        self.frames.run()
+
+    def stop(self) -> None:
+        """No more frames searched ahead (the one in hand is finished)."""
+        self.frames.stop()
+
+
+def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, D_raw: np.ndarray, poses: np.ndarray,
+                prior: np.ndarray, K: np.ndarray, ahead: SearchAhead | None = None) -> tuple[np.ndarray, int]:
+    """The consistent video depth ``[T,h,w]`` float32 metres: each pixel's prior times the ratio ``z / prior``
+    (``z`` the camera depth of the world positions ``xyz``, ``D_raw [N,T]`` the raw prior at the tracks) of its
+    :data:`K_NEAREST` nearest thinned reference observations, inverse-distance weighted. ``ahead``: the part
+    searched ahead (:class:`SearchAhead`; stopped here). Returns the maps and the frames whose search was done
+    ahead."""
+    refs = None
+    if ahead is not None:
+        ahead.stop()
+        refs = ahead.references()
+    n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, CELL_PX, refs)
+    neighbours = None if ahead is None else ahead.frames.take
+    depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K, K_NEAREST,
+                       neighbours=neighbours) * prior
+    return depth, 0 if ahead is None else ahead.frames.done
