@@ -213,3 +213,26 @@ def test_the_estimated_range_forgives_a_2_px_blur_that_1_px_does_not(rng):
     assert wrong[reach][band].mean() < 0.05
     for r in (1, reach):
         assert np.allclose(blur_tolerant(e, *prior_spread(t, uv, prior, r))[mover], np.log(1.1), atol=1e-3)
+
+
+def test_the_compiled_nearest_end_is_numpys_to_the_bit_with_ties_and_nans():
+    from trackingworld.optim.depth_movers import blur_tolerant, blur_tolerant_numpy
+
+    rng = np.random.default_rng(5)
+    M = 20000
+    e = rng.normal(0, 0.05, M)
+    far = np.abs(rng.normal(0, 0.05, M))
+    near = -np.abs(rng.normal(0, 0.05, M))
+    e[:100] = 0.5 * far[:100]  # a tie between the pixel's value and the far end: the first (the pixel) wins
+    near[100:200] = far[100:200] = e[100:200]  # both ends at e
+    e[200:210] = np.nan
+    far[210:220] = np.nan  # argmin takes the first NaN of the distances
+    near[220:230] = np.nan
+    got = blur_tolerant(e, far, near)
+    ref = blur_tolerant_numpy(e, far, near)
+    np.testing.assert_array_equal(got, ref)
+    assert np.isnan(got[200:230]).all() and np.isfinite(got[230:]).all()
+    assert np.array_equal(got[:100], e[:100]) and (got[100:200] == 0).all()
+    e32 = e[230:].astype(np.float32)  # another dtype: the numpy code
+    np.testing.assert_array_equal(blur_tolerant(e32, far[230:], near[230:]), blur_tolerant_numpy(e32, far[230:],
+                                                                                                   near[230:]))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from trackingworld.geometry import invert_pose, nearest_pixel
 
@@ -111,10 +112,35 @@ def blur_tolerant(e: np.ndarray, far: np.ndarray, near: np.ndarray) -> np.ndarra
     both sides at its pixel, while its own side's depth lies a pixel or two away, at one end of that range. A
     fit that lies between the two sides is not forgiven: at a mover's rim, the background's depth within reach
     would otherwise excuse a point the bundle adjustment placed too far (a range-as-interval rule did so, see
-    ``docs/lifting.md`` item 5)."""
+    ``docs/lifting.md`` item 5). Compiled for float64 (:func:`_nearest_end`, numpy's numbers to the bit: 3M
+    observations 0.40 -> 0.01 s); :func:`blur_tolerant_numpy` is the reference."""
+    if e.dtype == far.dtype == near.dtype == np.float64:
+        return _nearest_end(e, far, near)
+    return blur_tolerant_numpy(e, far, near)
+
+
+def blur_tolerant_numpy(e: np.ndarray, far: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """:func:`blur_tolerant` in numpy (the reference of :func:`_nearest_end`)."""
     ends = np.stack([np.zeros_like(e), far, near])
     nearest = np.argmin(np.abs(e[None] - ends), axis=0)
     return e - ends[nearest, np.arange(len(e))]
+
+
+@njit(cache=True, nogil=True)
+def _nearest_end(e, far, near):
+    """:func:`blur_tolerant_numpy` in one pass: ``e - c`` for the first of (0, far, near) nearest ``e``, where
+    numpy's ``argmin`` takes the first NaN of the distances if there is one."""
+    out = np.empty(len(e))
+    for m in range(len(e)):
+        x = e[m]
+        best = 0.0
+        d = abs(x)
+        for c in (far[m], near[m]):
+            dc = abs(x - c)
+            if dc < d or (dc != dc and d == d):
+                best, d = c, dc
+        out[m] = x - best
+    return out
 
 
 def log_depth_ratios(tracks, obs, xyz, D, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

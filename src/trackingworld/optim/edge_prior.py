@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from trackingworld.image import sample_image
+from trackingworld.optim.parallel import each_frame
 
 GRAD_LOG_PER_PX = 0.03  # log depth per px at which a pixel's weight falls to 1/e (a blurred edge is steeper)
 MIN_SUPPORT = 1e-3  # normalised-convolution weight below which a pixel keeps the prior
@@ -45,13 +46,16 @@ def inner_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, sigma: float
     support[(t[inside] * H + p[inside, 1]) * W + p[inside, 0]] = 1.0
     support = support.reshape(T, H, W)
     out = np.empty((T, H, W), np.float32)
-    for f in range(T):
+
+    def frame(f: int) -> None:
         log_d = np.log(np.maximum(prior[f], 1e-6, dtype=np.float32))
         g = cv2.magnitude(cv2.Sobel(log_d, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(log_d, cv2.CV_32F, 0, 1, ksize=3))
         w = support[f] * np.exp(-np.square(g * np.float32(1 / (8 * grad))))
         num = cv2.GaussianBlur(w * log_d, (0, 0), sigma)
         den = cv2.GaussianBlur(w, (0, 0), sigma)
         out[f] = np.where(den > MIN_SUPPORT, np.exp(num / np.maximum(den, np.float32(1e-12))), prior[f])
+
+    each_frame(frame, range(T))  # frames on the CPUs' threads (OpenCV and numpy let go of the GIL): the same maps
     return out
 
 

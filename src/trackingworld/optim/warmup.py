@@ -2,6 +2,7 @@
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
 :mod:`trackingworld.optim.static_fit`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
+the nearest ends of :mod:`trackingworld.optim.depth_movers`,
 the projections of :mod:`trackingworld.optim.photo_static` and the fields of :mod:`trackingworld.optim.ratio_field`
 on their first call and caches the machine code beside
 the package; without this step the first run on a machine pays that compile (about 25 s on a 2-core CPU) in the
@@ -20,7 +21,7 @@ import numpy as np
 def warm() -> float:
     """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
     took."""
-    from trackingworld.optim import ba_blocks, densify, photo_static, point_fit, ratio_field, static_fit
+    from trackingworld.optim import ba_blocks, densify, depth_movers, photo_static, point_fit, ratio_field, static_fit
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -45,6 +46,7 @@ def warm() -> float:
         static_fit.fit_points(R, t, pt, fr, uv[pt, fr], depth[pt, fr], K, weights, True, True, None, dc_weight, N)
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
     densify.thinned_observations(uv, vis, 4.0)  # the video depth's references
+    depth_movers.blur_tolerant(np.zeros(N), np.ones(N), -np.ones(N))  # the depth-mover test's nearest ends
     fields = ratio_field.fit_log_fields([(uv[:, 0], np.zeros(N)), None], (240, 320))  # the depth fields
     fields[0](uv[:, 1])
     open_t = np.ones((240, 320), bool)

@@ -6,6 +6,7 @@ import numpy as np
 
 from trackingworld.geometry import unproject
 from trackingworld.image import sample_image
+from trackingworld.optim.parallel import each_frame
 
 
 def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = None,
@@ -20,12 +21,15 @@ def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = N
         for t in range(T):
             out[t] = sample_image(maps[t].astype(np.float32), per_frame[t])
         return np.ascontiguousarray(out.T)
-    out = np.full((N, T), fill, np.float32)
+    out = np.full((T, N), fill, np.float32)  # frame-major while written: each frame its own contiguous row
     vis_t = np.ascontiguousarray(visible.T)
-    for t in range(T):
+
+    def frame(t: int) -> None:
         v = np.flatnonzero(vis_t[t])
-        out[v, t] = sample_image(maps[t].astype(np.float32), uv[v, t].astype(np.float32))
-    return out
+        out[t, v] = sample_image(maps[t].astype(np.float32), uv[v, t].astype(np.float32))
+
+    each_frame(frame, range(T))  # on the CPUs' threads (OpenCV and numpy let go of the GIL): the same numbers
+    return np.ascontiguousarray(out.T)
 
 
 def lift_camera_frame(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
