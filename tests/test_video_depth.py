@@ -90,3 +90,20 @@ def test_frames_ahead_hands_each_frame_over_once_and_waits_for_the_one_in_hand()
     late.stop()
     late.run()
     assert late.done == 0 and late.take(0) is None
+
+
+def test_a_core_taken_leaves_the_others_to_the_splits(monkeypatch):
+    from trackingworld.optim import parallel
+
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 4)
+    assert parallel.worker_threads() == 4
+    with parallel.core_taken():
+        assert parallel.worker_threads() == 3
+        seen = []
+        t = threading.Thread(target=lambda: seen.append(parallel.worker_threads()))  # in every thread
+        t.start()
+        t.join()
+        assert seen == [3]
+        with parallel.core_taken(), parallel.core_taken(), parallel.core_taken():
+            assert parallel.worker_threads() == 1  # never fewer than one
+    assert parallel.worker_threads() == 4

@@ -31,9 +31,32 @@ def cpu_count() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+_taken = 0  # CPUs taken by work on threads of its own (:func:`core_taken`)
+_taken_lock = threading.Lock()
+
+
 def worker_threads(limit: int = MAX_THREADS) -> int:
-    """The CPUs this process may run on, at most ``limit`` and at most the cap of :func:`set_thread_cap`."""
-    return max(1, min(limit, cpu_count(), _cap or limit))
+    """The CPUs this process may run on, at most ``limit`` and at most the cap of :func:`set_thread_cap`, less
+    those taken by work beside the caller's (:func:`core_taken`); at least 1."""
+    return max(1, min(limit, cpu_count(), _cap or limit) - _taken)
+
+
+@contextmanager
+def core_taken() -> Iterator[None]:
+    """:func:`worker_threads` one less inside the block, in every thread: for a block beside which work runs on a
+    thread of its own (the rigid step, beside the carrying of the hidden frames and the video depth's search ahead),
+    so that neither splits its work into more threads than the cores left to it; with more, the parts wait on
+    each other. The 854x480 run on 2 cores (``docs/speed.md``, stop 73), each alternated with stop 72's code: with
+    the search beside it and no core taken, the rigid step took 18.5 / 21.2 / 18.3 s against 14.6 / 15.9 / 17.8 s;
+    with one taken 14.5 / 12.5 / 19.3 s against 18.4 / 17.0 / 19.5 s."""
+    global _taken
+    with _taken_lock:
+        _taken += 1
+    try:
+        yield
+    finally:
+        with _taken_lock:
+            _taken -= 1
 
 
 def set_thread_cap(n: int) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 
 import numpy as np
 import torch
@@ -16,7 +17,7 @@ from trackingworld.geometry import camera_depths, focal_length, transform, unpro
 from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
-from trackingworld.optim.parallel import torch_threads, worker_threads
+from trackingworld.optim.parallel import core_taken, torch_threads, worker_threads
 from trackingworld.optim.rigid import RigidSettings, rigid_movers
 from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
@@ -103,7 +104,9 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
         settings.bridge = None
     pool = ThreadPoolExecutor(1, thread_name_prefix="tw-beside") if carry is not None or beside is not None else None
     try:
-        with torch_threads(RIGID_THREADS):
+        # one core for the thread beside the step, the others for the step (and for the thread's own splits)
+        with (core_taken() if pool is not None else nullcontext()), torch_threads(min(RIGID_THREADS,
+                                                                                    worker_threads())):
             into = None if carry is None else pool.submit(carry).result
             if beside is not None:
                 pool.submit(beside)
