@@ -43,12 +43,12 @@ def worker_threads(limit: int = MAX_THREADS) -> int:
 
 @contextmanager
 def core_taken() -> Iterator[None]:
-    """:func:`worker_threads` one less inside the block, in every thread: for a block beside which work runs on a
-    thread of its own (the rigid step, beside the carrying of the hidden frames and the video depth's search ahead),
-    so that neither splits its work into more threads than the cores left to it; with more, the parts wait on
-    each other. The 854x480 run on 2 cores (``docs/speed.md``, stop 73), each alternated with stop 72's code: with
-    the search beside it and no core taken, the rigid step took 18.5 / 21.2 / 18.3 s against 14.6 / 15.9 / 17.8 s;
-    with one taken 14.5 / 12.5 / 19.3 s against 18.4 / 17.0 / 19.5 s."""
+    """:func:`worker_threads` one less inside the block, in every thread: for work on a thread of its own beside
+    other work (the carrying of the hidden frames and the video depth's search ahead, beside the rigid step), so
+    that neither splits its work into more threads than the cores left to it; with more, the parts wait on each
+    other. The 854x480 run on 2 cores (``docs/speed.md``, stop 73), each alternated with stop 72's code: with the
+    search beside it and no core taken, the rigid step took 18.5 / 21.2 / 18.3 s against 14.6 / 15.9 / 17.8 s;
+    with one taken for the whole step 14.5 / 12.5 / 19.3 s against 18.4 / 17.0 / 19.5 s."""
     global _taken
     with _taken_lock:
         _taken += 1

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import sys
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
 
 import numpy as np
 import torch
@@ -96,18 +95,19 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
     image's (W, H), px). ``carry``: :func:`place_dynamic`'s deferred carrying of the hidden frames, run on a thread
     beside the rigid step (which reads the visible frames only, :func:`can_defer_carry`), the groups' positions
     then written into its result: the same numbers as the two one after the other, in the time of the longer.
-    ``beside``: more work for that thread once the carrying is done, which reads nothing the step writes and is
-    left running when the step ends (the video depth's search ahead, ``pipeline.video_depth.SearchAhead.run``)."""
+    ``beside``: more work for that thread once the carrying is done, which reads nothing the step writes, counts
+    the core it takes itself (``optim.parallel.core_taken``) and is left running when the step ends (the video
+    depth's search ahead, ``pipeline.video_depth.SearchAhead.job``). While the thread works, the step and the
+    carrying split their work among the cores left (``worker_threads()`` one less), and torch runs the step on one
+    thread fewer throughout."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
     settings = RigidSettings(ring_seeds=cfg.rigid_second_pass)
     if not cfg.rigid_bridge:
         settings.bridge = None
     pool = ThreadPoolExecutor(1, thread_name_prefix="tw-beside") if carry is not None or beside is not None else None
     try:
-        # one core for the thread beside the step, the others for the step (and for the thread's own splits)
-        with (core_taken() if pool is not None else nullcontext()), torch_threads(min(RIGID_THREADS,
-                                                                                    worker_threads())):
-            into = None if carry is None else pool.submit(carry).result
+        with torch_threads(min(RIGID_THREADS, worker_threads() - (pool is not None))):
+            into = None if carry is None else pool.submit(_on_one_core, carry).result
             if beside is not None:
                 pool.submit(beside)
             xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target,
@@ -118,6 +118,12 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
         if pool is not None:
             pool.shutdown(wait=False)  # the carrying was waited for (into); ``beside`` may go on
     info.update(counts)
+
+
+def _on_one_core(work):
+    """``work()`` with one core counted as taken while it runs (``optim.parallel.core_taken``)."""
+    with core_taken():
+        return work()
 
 
 def _follow_controls(uv, D, target, dyn, ctrl, ref_obs, follow, xyz, poses, K, k) -> np.ndarray:

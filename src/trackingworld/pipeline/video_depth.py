@@ -12,7 +12,7 @@ import threading
 import numpy as np
 
 from trackingworld.optim.densify import pixel_neighbours, ratio_maps, thinned_observations
-from trackingworld.optim.parallel import FramesAhead
+from trackingworld.optim.parallel import FramesAhead, core_taken
 from trackingworld.pipeline.fields import reference_ratios
 
 CELL_PX = 4.0  # one reference observation per this many px square of each frame (reference_ratios' default)
@@ -34,6 +34,8 @@ class SearchAhead:
         self._lock = threading.Lock()
         per_frame = shape[0] * shape[1] * K_NEAREST * 4
         self.frames = FramesAhead(self._search, range(min(vis.shape[1], budget_bytes // max(per_frame, 1))))
+        self._idle = threading.Event()  # no run() going, nor one handed to a thread (job)
+        self._idle.set()
 
     def references(self) -> tuple[np.ndarray, np.ndarray]:
         """(track [R], frame [R]): the visible observations thinned to one per :data:`CELL_PX` square of each frame,
@@ -49,13 +51,24 @@ class SearchAhead:
         return pixel_neighbours(self._uv[n[rows], t], self._shape, K_NEAREST, workers=1)
 
     def run(self) -> None:
-        """The references, then the frames' searches in order, until :meth:`stop` or the memory budget's last frame."""
-        self.references()
-        self.frames.run()
+        """The references, then the frames' searches in order, until :meth:`stop` or the memory budget's last frame,
+        with one core counted as taken (``optim.parallel.core_taken``: the work beside it splits among the others)."""
+        try:
+            with core_taken():
+                self.references()
+                self.frames.run()
+        finally:
+            self._idle.set()
 
-    def stop(self) -> None:
-        """No more frames searched ahead (the one in hand is finished)."""
+    def job(self):
+        """:meth:`run`, to be handed to a thread now: :meth:`finish` then waits for it."""
+        self._idle.clear()
+        return self.run
+
+    def finish(self) -> None:
+        """No more frames searched ahead; returns once the frame in hand is finished and the core given back."""
         self.frames.stop()
+        self._idle.wait()
 
 
 def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, D_raw: np.ndarray, poses: np.ndarray,
@@ -63,11 +76,11 @@ def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, D_raw: np.ndar
     """The consistent video depth ``[T,h,w]`` float32 metres: each pixel's prior times the ratio ``z / prior``
     (``z`` the camera depth of the world positions ``xyz``, ``D_raw [N,T]`` the raw prior at the tracks) of its
     :data:`K_NEAREST` nearest thinned reference observations, inverse-distance weighted. ``ahead``: the part
-    searched ahead (:class:`SearchAhead`; stopped here). Returns the maps and the frames whose search was done
+    searched ahead (:class:`SearchAhead`; finished here). Returns the maps and the frames whose search was done
     ahead."""
     refs = None
-    if ahead is not None:
-        ahead.stop()
+    if ahead is not None:  # its core back first: the frames it did not reach run on every core
+        ahead.finish()
         refs = ahead.references()
     n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, CELL_PX, refs)
     neighbours = None if ahead is None else ahead.frames.take

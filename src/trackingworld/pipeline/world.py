@@ -267,7 +267,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             ahead = SearchAhead(uv, vis, prior.shape[1:])
         with tm("rigid_movers"):
             place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info,
-                        (prior.shape[2], prior.shape[1]), carry, None if ahead is None else ahead.run)
+                        (prior.shape[2], prior.shape[1]), carry, None if ahead is None else ahead.job())
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
