@@ -107,3 +107,18 @@ def test_a_core_taken_leaves_the_others_to_the_splits(monkeypatch):
         with parallel.core_taken(), parallel.core_taken(), parallel.core_taken():
             assert parallel.worker_threads() == 1  # never fewer than one
     assert parallel.worker_threads() == 4
+
+
+def test_the_search_handed_to_a_thread_is_finished_by_the_video_depth():
+    uv, vis, xyz, D_raw, poses, prior, K = _tracks(2)
+    ref, _ = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K)
+    ahead = vd.SearchAhead(uv, vis, prior.shape[1:])
+    thread = threading.Thread(target=ahead.job())
+    thread.start()
+    got, n = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)  # waits for the thread's frame in hand
+    thread.join(5)
+    assert not thread.is_alive()
+    np.testing.assert_array_equal(got, ref)
+    assert 0 <= n <= 5
+    from trackingworld.optim import parallel
+    assert parallel._taken == 0  # its core given back

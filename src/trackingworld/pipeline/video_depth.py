@@ -25,8 +25,9 @@ AHEAD_BYTES = 512 * 2**20
 class SearchAhead:
     """The video depth's work that reads only the 2D tracks ``uv [N,T,2]`` / ``vis [N,T]`` (which nothing changes
     from the rigid-mover step on): the thinned reference observations, then frame by frame the kNN search of every
-    pixel of ``shape (h, w)`` among them, on a spare thread (:meth:`run`, one core's work). :func:`video_depth`
-    takes what is done and does the rest as it would have; the numbers are the same either way."""
+    pixel of ``shape (h, w)`` among them, on a spare thread (:meth:`job` hands it :meth:`run`, one core's work).
+    :func:`video_depth` takes what is done and does the rest as it would have; the numbers are the same either
+    way."""
 
     def __init__(self, uv: np.ndarray, vis: np.ndarray, shape: tuple[int, int], budget_bytes: int = AHEAD_BYTES):
         self._uv, self._vis, self._shape = uv, vis, shape
@@ -51,7 +52,7 @@ class SearchAhead:
         return pixel_neighbours(self._uv[n[rows], t], self._shape, K_NEAREST, workers=1)
 
     def run(self) -> None:
-        """The references, then the frames' searches in order, until :meth:`stop` or the memory budget's last frame,
+        """The references, then the frames' searches in order, until :meth:`finish` or the memory budget's last frame,
         with one core counted as taken (``optim.parallel.core_taken``: the work beside it splits among the others)."""
         try:
             with core_taken():
