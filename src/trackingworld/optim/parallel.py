@@ -1,4 +1,5 @@
-"""Loops over frames, and compiled kernels' items (:func:`in_parts`), run on threads.
+"""Loops over frames, and compiled kernels' items (:func:`in_parts`), run on threads; frames worked out ahead on a
+spare thread (:class:`FramesAhead`), and the cores such a thread takes from the splits (:func:`core_taken`).
 
 The video depth's per-frame work is a kNN search (scipy's releases the GIL)
 and large numpy array operations (which release it too), so two frames on two cores overlap. Each frame writes its
