@@ -269,10 +269,11 @@ def ratio_maps(frame: np.ndarray, ref_uv: np.ndarray, ref_depth: np.ndarray, ref
     return out
 
 
-def pixel_neighbours(ref_uv: np.ndarray, shape: tuple[int, int], k: int = 4, workers: int = 1) -> np.ndarray | None:
-    """One frame's kNN search of :func:`ratio_maps`, ahead of it: the indices ``[h*w,k]`` int32 of every pixel's
-    ``k`` nearest of the frame's references ``ref_uv [R,2]`` px (in their order); None where there are none. Int32
-    for half the memory (a frame of 854x480 pixels, k = 4: 6.6 MB)."""
+def pixel_neighbours(ref_uv: np.ndarray, pixels: np.ndarray, k: int = 4, workers: int = 1) -> np.ndarray | None:
+    """One frame's kNN search of :func:`ratio_maps`, ahead of it: the indices ``[h*w,k]`` int32 of the ``k`` nearest
+    of the frame's references ``ref_uv [R,2]`` px (in their order) to each of ``pixels`` (:func:`pixel_grid` of the
+    image, as :func:`ratio_maps` queries them); None where there are none. Int32 for half the memory (a frame of
+    854x480 pixels, k = 4: 6.6 MB)."""
     if not len(ref_uv):
         return None
-    return nearest_references(ref_uv, pixel_grid(*shape), k, workers).astype(np.int32)
+    return nearest_references(ref_uv, pixels, k, workers).astype(np.int32)

@@ -78,7 +78,10 @@ def edge_free_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.
     return out
 
 
-def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = 4.0, observations=None):
+REFERENCE_CELL_PX = 4.0  # the scale propagation's references: one visible observation per this many px square
+
+
+def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = REFERENCE_CELL_PX, observations=None):
     """The references of the appendix's scale propagation among ``tracks`` [n] (indices, a set: a cell keeps its
     lowest-index track; None: all), selected through a mask rather than copied out: one visible observation per
     ``cell`` px square of each frame, in frame order. Returns (track [R], frame [R], ratio [R] = camera z of its

@@ -11,11 +11,10 @@ import threading
 
 import numpy as np
 
-from trackingworld.optim.densify import pixel_neighbours, ratio_maps, thinned_observations
+from trackingworld.optim.densify import pixel_grid, pixel_neighbours, ratio_maps, thinned_observations
 from trackingworld.optim.parallel import FramesAhead, core_taken
-from trackingworld.pipeline.fields import reference_ratios
+from trackingworld.pipeline.fields import REFERENCE_CELL_PX, reference_ratios
 
-CELL_PX = 4.0  # one reference observation per this many px square of each frame (reference_ratios' default)
 K_NEAREST = 4  # references per pixel
 # the most memory the neighbours searched ahead may hold (int32, k = 4: 6.6 MB a frame of 854x480 pixels, so 77
 # frames; the frames past it are searched when the video depth is made, as without the search ahead)
@@ -32,6 +31,7 @@ class SearchAhead:
     def __init__(self, uv: np.ndarray, vis: np.ndarray, shape: tuple[int, int], budget_bytes: int = AHEAD_BYTES):
         self._uv, self._vis, self._shape = uv, vis, shape
         self._refs: tuple[np.ndarray, np.ndarray] | None = None
+        self._pixels: np.ndarray | None = None  # [h*w,2] the pixels searched for, made once by the thread
         self._lock = threading.Lock()
         per_frame = shape[0] * shape[1] * K_NEAREST * 4
         self.frames = FramesAhead(self._search, range(min(vis.shape[1], budget_bytes // max(per_frame, 1))))
@@ -39,17 +39,17 @@ class SearchAhead:
         self._idle.set()
 
     def references(self) -> tuple[np.ndarray, np.ndarray]:
-        """(track [R], frame [R]): the visible observations thinned to one per :data:`CELL_PX` square of each frame,
-        in frame order (``optim.densify.thinned_observations``), made once (waited for where in hand)."""
+        """(track [R], frame [R]): the visible observations thinned to one per ``REFERENCE_CELL_PX`` square of each
+        frame, in frame order (``optim.densify.thinned_observations``), made once (waited for where in hand)."""
         with self._lock:
             if self._refs is None:
-                self._refs = thinned_observations(self._uv, self._vis, CELL_PX)
+                self._refs = thinned_observations(self._uv, self._vis, REFERENCE_CELL_PX)
             return self._refs
 
     def _search(self, t: int) -> np.ndarray | None:
         n, f = self.references()
         rows = slice(*np.searchsorted(f, [t, t + 1]))
-        return pixel_neighbours(self._uv[n[rows], t], self._shape, K_NEAREST, workers=1)
+        return pixel_neighbours(self._uv[n[rows], t], self._pixels, K_NEAREST, workers=1)
 
     def run(self) -> None:
         """The references, then the frames' searches in order, until :meth:`finish` or the memory budget's last frame,
@@ -57,6 +57,7 @@ class SearchAhead:
         try:
             with core_taken():
                 self.references()
+                self._pixels = pixel_grid(*self._shape)
                 self.frames.run()
         finally:
             self._idle.set()
@@ -83,7 +84,7 @@ def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, D_raw: np.ndar
     if ahead is not None:  # its core back first: the frames it did not reach run on every core
         ahead.finish()
         refs = ahead.references()
-    n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, CELL_PX, refs)
+    n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, REFERENCE_CELL_PX, refs)
     neighbours = None if ahead is None else ahead.frames.take
     depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K, K_NEAREST,
                        neighbours=neighbours) * prior
