@@ -136,3 +136,22 @@ def test_the_command_line_runs_without_ipp():
         pytest.skip("this OpenCV has no IPP")
     assert _python(CLI).stdout.strip() == "False"
     assert _python(CLI, TRACKINGWORLD_IPP="1").stdout.strip() == "True"
+
+
+def test_two_runs_write_the_same_result_to_the_bit(tiny_scene, tmp_path):
+    import numpy as np
+
+    inp = tiny_scene / "input"
+    results = []
+    for name in ("a", "b"):
+        _python(f"""
+import sys
+from trackingworld.cli.main import main
+sys.exit(main(["run", "{inp / 'frames'}", "--out", "{tmp_path / name}", "--depth", "{inp / 'depth.npy'}",
+               "--masks", "{inp / 'masks'}", "--intrinsics", "{inp / 'intrinsics.txt'}", "--quiet"]))
+""")
+        results.append(np.load(tmp_path / name / "result.npz"))
+    a, b = results
+    assert a.files == b.files
+    for key in a.files:
+        assert np.array_equal(a[key], b[key], equal_nan=True), key

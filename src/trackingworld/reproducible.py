@@ -1,13 +1,13 @@
 """Reproducible runs: OpenCV without its IPP code paths, so that one input gives one result to the bit.
 
-OpenCV hands some of its functions to Intel's IPP (its ``GaussianBlur`` and ``Sobel`` on float32 images among
-them), and IPP's results depend on where the arrays lie in memory: the same call on the same values can differ in
-the last bit from one call to the next. In the edge-aware prior of the depth fields (``optim.edge_prior``) 16-34 of
-the 2.5M pixels of `default` 0 came out different in each of six calls, by up to 1.4e-6 in log depth, on one
-thread too; without IPP none did. The label tests and the rigid-mover step carry such bits on: two runs of
-`default` 0 from the same tracks wrote ``tracks_3d`` different in 962 entries (up to 1.9e-6 m) and ``depth`` in
-150; with IPP off, two runs wrote the same ``result.npz`` to the bit (``docs/results.md``, stop 74). The price
-in time is measured there too.
+OpenCV hands some of its functions to Intel's IPP (its ``GaussianBlur`` and ``Sobel`` on float32 images among them),
+and IPP's results depend on where the arrays lie in memory: the same call on the same values can differ in the last
+bit from one call to the next. In the edge-aware prior of the depth fields (``optim.edge_prior``) 16-23 of the 2.5M
+pixels of `default` 0 came out different from the first call's in each of six more calls, by up to 1.4e-6 in log
+depth (on one thread: 34 pixels in four calls of five); without IPP none did. The label tests and the rigid-mover
+step carry such bits on: two runs of `default` 0 from the same tracks wrote ``tracks_3d`` different in 962 entries
+(up to 1.9e-6 m) and ``depth`` in 150; with IPP off, two runs wrote the same ``result.npz`` to the bit
+(``docs/results.md``, stop 74). The price in time is measured there too.
 
 OpenCV reads ``OPENCV_IPP`` once, when ``cv2`` is first imported, and its run-time switch
 (``cv2.ipp.setUseIPP``) holds for the calling thread alone, not for OpenCV's own worker threads nor the
