@@ -37,7 +37,8 @@ def inner_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, sigma: float
     ``uv [n,T,2]`` px where visible (``vis [n,T]``), weighted by ``exp(-(|grad log prior| / grad)^2)`` with a
     Gaussian of ``sigma`` px (module docstring); the prior itself where no track is near. In float32 (log depth to
     1e-7; 120 frames at 320x240 over 87k tracks: 0.55 -> 0.31 s): the covered pixels of every frame are marked in
-    one pass over the visible observations instead of a gather per frame."""
+    one pass over the visible observations instead of a gather per frame. The same maps from call to call only
+    with OpenCV's IPP off (``trackingworld.reproducible``): IPP's blur gives other last bits as memory moves."""
     T, H, W = prior.shape
     n, t = np.nonzero(vis)
     p = np.rint(uv[n, t]).astype(np.int64)
