@@ -13,10 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from trackingworld.reproducible import without_ipp
-
-without_ipp()  # before anything imports cv2: the CLI's results, the same from run to run (trackingworld.reproducible)
-
 from trackingworld.config import RunConfig, Track2DConfig
 from trackingworld.eval.evaluate import evaluate_to_file, load_gt
 from trackingworld.geometry import nearest_pixel

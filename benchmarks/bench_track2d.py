@@ -19,10 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-from trackingworld.reproducible import without_ipp
-
-without_ipp()  # before the first import of cv2, as the CLI (trackingworld.reproducible)
-
 from trackingworld.config import Track2DConfig
 from trackingworld.eval.dense import coverage
 from trackingworld.eval.match import match_queries

@@ -19,10 +19,6 @@ import sys
 import time
 from pathlib import Path
 
-from trackingworld.reproducible import without_ipp
-
-without_ipp()  # before the first import of cv2, as the CLI (trackingworld.reproducible)
-
 import cv2
 import numpy as np
 from scipy import ndimage

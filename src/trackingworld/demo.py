@@ -8,10 +8,6 @@ import sys
 import time
 from pathlib import Path
 
-from trackingworld.reproducible import without_ipp
-
-without_ipp()  # before anything imports cv2, as the CLI does (trackingworld.reproducible)
-
 from trackingworld.config import InputConfig, RunConfig
 from trackingworld.eval.evaluate import evaluate_to_file, format_table
 from trackingworld.memory import reuse_freed_memory

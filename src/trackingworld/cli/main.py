@@ -9,7 +9,6 @@ from pathlib import Path
 
 from trackingworld.errors import InputError
 from trackingworld.memory import reuse_freed_memory
-from trackingworld.reproducible import without_ipp
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -601,7 +600,6 @@ def cmd_export(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    without_ipp()  # before the parser imports cv2: the same results from run to run (trackingworld.reproducible)
     p = build_parser()
     a = p.parse_args(argv)
     if a.version:

@@ -21,6 +21,8 @@ import cv2
 import numpy as np
 import torch
 
+from trackingworld import reproducible
+
 MAX_THREADS = 8
 _cap: int | None = None  # set_thread_cap's limit for this process (None: every CPU it may run on)
 _pool: ThreadPoolExecutor | None = None  # in_parts' threads, made on first use and kept
@@ -81,8 +83,13 @@ def each_frame(work: Callable[[int], None], frames: Iterable[int], threads: int 
         for t in frames:
             work(t)
         return
+
+    def in_thread(t: int) -> None:  # OpenCV's IPP switch is per thread: this one's set as the caller's block wants
+        reproducible.follow()
+        work(t)
+
     with ThreadPoolExecutor(n) as pool:
-        for _ in pool.map(work, frames):
+        for _ in pool.map(in_thread, frames):
             pass
 
 

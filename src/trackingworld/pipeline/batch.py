@@ -25,7 +25,6 @@ from trackingworld.io.result import RESULT_FILE
 from trackingworld.optim.parallel import cpu_count, set_thread_cap
 from trackingworld.pipeline.run import TIMINGS_FILE, check_run, run
 from trackingworld.priors.sources import depth_source, mask_source
-from trackingworld.reproducible import quiet_children, worker_started
 
 SUMMARY_FILE = "batch.json"
 NAME_FIELD = "{name}"  # in a prior's path: replaced by each video's name
@@ -93,13 +92,6 @@ def run_video(cfg: RunConfig, path: str, name: str, out: Path, verbose: bool = T
     return entry
 
 
-def _worker_start(threads: int) -> None:
-    """A ``--jobs`` worker process's set-up: its threads capped, and OpenCV's log level as the parent's
-    environment asked for (``reproducible.quiet_children`` lowered it while the worker started)."""
-    set_thread_cap(threads)
-    worker_started()
-
-
 def run_batch(cfg: RunConfig, inputs: list[str], out_root: str | Path, skip_done: bool = False,
               verbose: bool = True, jobs: int = 1, threads: int | None = None) -> list[dict]:
     """Run ``cfg`` on every input into ``out_root/<name>/``. A video whose run fails (bad input or any error) is
@@ -143,8 +135,8 @@ def run_batch(cfg: RunConfig, inputs: list[str], out_root: str | Path, skip_done
         return entries
     workers = min(jobs, len(todo))  # no more processes than videos, and the CPUs shared among those
     per_job = threads or max(1, cpu_count() // workers)
-    with quiet_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_start,
-                                               initargs=(per_job,)) as pool:
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=set_thread_cap,
+                             initargs=(per_job,)) as pool:
         futures = {pool.submit(run_video, cfg, inputs[k], names[k], outs[k], False): k for k in todo}
         for k in todo:
             print(f"{head[k]} (queued; {workers} at once, {per_job} threads each)", file=sys.stderr, flush=True)

@@ -20,6 +20,7 @@ from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import check_track2d, track_video
 from trackingworld.pipeline.world import check_optim, run_trackingworld
 from trackingworld.priors.resolve import resolve_priors, tracks_key
+from trackingworld.reproducible import ipp_off
 from trackingworld.tracking2d.base import TrackResult
 
 METHODS = {"trackingworld": run_trackingworld, "baseline": run_baseline}
@@ -88,7 +89,8 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose)
     timings["priors"] = time.perf_counter() - t1
     report: dict = {}
-    result = METHODS[cfg.method](inp, tr, cfg, timings, report)
+    with ipp_off():  # the lifting's numbers the same from run to run (trackingworld.reproducible)
+        result = METHODS[cfg.method](inp, tr, cfg, timings, report)
     timings["total"] = time.perf_counter() - t0
     save_result(out_dir, result)
     write_json(out_dir / CONFIG_FILE, cfg.to_dict())
