@@ -267,3 +267,61 @@ def test_the_carrying_beside_the_rigid_step_gives_the_result_of_one_after_the_ot
     np.testing.assert_array_equal(a.is_dynamic, b.is_dynamic)
     np.testing.assert_array_equal(a.visible, b.visible)
     np.testing.assert_allclose(a.tracks_3d, b.tracks_3d, rtol=0, atol=1e-4)  # the run-to-run spread: 1e-4 m
+
+
+def test_pieces_are_the_points_joined_within_the_gap():
+    from trackingworld.optim.rigid import pieces
+
+    rng = np.random.default_rng(0)
+    blob = rng.uniform(-0.15, 0.15, (300, 3))
+    label = pieces(np.r_[blob, blob[:100] + np.array([1.0, 0.0, 0.0])], gap=0.2)
+    assert len(np.unique(label[:300])) == 1 and len(np.unique(label[300:])) == 1 and label[0] != label[-1]
+    assert len(np.unique(pieces(blob, gap=0.2))) == 1
+    assert len(np.unique(pieces(np.r_[blob, blob[:100] + 0.35], gap=0.2))) == 1  # touching: one piece
+
+
+def _two_objects():
+    """Two boxes 1 m apart at 3 m that move together for 10 frames, after which the first (seen in frames 0-9 only)
+    goes on and the second (seen in all 16) turns away: one rigid motion explains every track where it is seen.
+    Returns uv, vis, true world points [N,T,3], poses, K, query frames, the first box's tracks [N] bool."""
+    rng = np.random.default_rng(3)
+    K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
+    poses = np.stack([look_at(np.array([0.05 * t, 0.0, -3.0]), np.array([0.05 * t, 0.0, 0.0])) for t in range(T)])
+    n_a, n_b = 150, 120
+    P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
+    P[:n_a, 0] -= 0.5
+    P[n_a:, 0] += 0.5
+    t = np.arange(T, dtype=np.float64)
+    together = np.minimum(t, 9)[:, None] * np.array([0.03, 0.0, 0.0])
+    X = np.repeat(P[:, None], T, 1) + together[None]
+    X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
+    X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
+    Xc = transform(invert_pose(poses)[None], X)
+    uv = np.stack([K[0, 0] * Xc[..., 0] / Xc[..., 2] + K[0, 2], K[1, 1] * Xc[..., 1] / Xc[..., 2] + K[1, 2]], -1)
+    vis = np.ones((n_a + n_b, T), bool)
+    vis[:n_a, 10:] = False
+    qf = rng.integers(0, 10, n_a + n_b)  # both queried where both are seen
+    first = np.r_[np.ones(n_a, bool), np.zeros(n_b, bool)]
+    return uv, vis, X, Xc[..., 2], poses, K, qf, first
+
+
+def test_a_group_of_two_objects_one_motion_explains_is_cut_to_its_largest_piece():
+    """Without the cut, the second box's turn places the first box in the frames it is hidden in (0.5 m off);
+    with it, each box is a group of its own and the first keeps its given positions there."""
+    uv, vis, X, z, poses, K, qf, first = _two_objects()
+    errs = {}
+    for gap in (0.0, 0.1):
+        s = RigidSettings(min_tracks=100, split_gap=gap, ring_seeds=0, bridge=None)
+        out, groups, info = rigid_movers(uv, vis, z, X.copy(), poses, K, qf, OptimConfig(), s)
+        b = np.bincount(groups[~first][groups[~first] >= 0]).argmax()  # the second box's group
+        assert ((groups[first] == b).mean() > 0.5) == (gap == 0), (gap, info)
+        errs[gap] = np.median(np.linalg.norm(out[first][:, 10:] - X[first][:, 10:], axis=-1))
+    assert errs[0.0] > 0.2 and errs[0.1] < 0.01, errs
+
+
+def test_a_negative_split_gap_is_refused_in_one_line():
+    from trackingworld.errors import InputError
+    from trackingworld.pipeline.world import check_optim
+
+    with pytest.raises(InputError, match="rigid_split_gap -0.1: a fraction of the depth"):
+        check_optim(OptimConfig(rigid_split_gap=-0.1))

@@ -331,6 +331,12 @@ class OptimConfig:
     # seed. Forty-seven synthetic scenes: world 3D accuracy 83.32 -> 83.70, 28 up and 11 down by up to 0.51, the
     # optimisation 14.2 -> 18.9 s per scene (optim.rigid, docs/lifting.md item 6d; 0: one pass, as before stop 63)
     rigid_second_pass: int = 30
+    # (not in the paper) ... and a group whose points, in the object's frame, fall apart into pieces more than this
+    # times their median depth apart (the others holding 10% of it or more) cut to its largest piece, its motion
+    # fitted to that again: one rigid motion (a spin about an axis between them) can explain two objects that pass
+    # each other the opposite way over the frames both are seen in, and the group then placed each in the frames
+    # only the other was seen in (`hard` 22: objects 2.4 m apart in one group; optim.rigid; 0: never)
+    rigid_split_gap: float = 0.1
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least occluded_static_in_view frames where the point is in view, and at least occluded_static_frames of its

@@ -440,6 +440,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rigid-second-pass", type=int, default=d.rigid_second_pass, metavar="SEEDS",
                    help="(not in the paper) with --rigid-movers: a second search for groups, of at most SEEDS seeds, "
                         "each kept away from the patches the first search tried (0: one search)")
+    g.add_argument("--rigid-split-gap", type=float, default=d.rigid_split_gap, metavar="FRAC",
+                   help="(not in the paper) with --rigid-movers: a group whose points fall apart, in the object's "
+                        "frame, into pieces more than FRAC x their median depth apart is cut to its largest piece "
+                        "(0: never)")
     g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
                    help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
@@ -509,6 +513,7 @@ def _optim_config(a):
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,
         photo_static_track_px=a.photo_static_track,
         rigid_movers=a.rigid_movers, rigid_bridge=a.rigid_bridge, rigid_second_pass=a.rigid_second_pass,
+        rigid_split_gap=a.rigid_split_gap,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,

@@ -22,8 +22,10 @@ search ends after ``max_failed`` seeds in a row gave no group; a second search (
 ``seed_ring`` steps of the neighbour graph away from every patch and group the first one tried. Tracks of a
 non-rigid object, of the background, or that jump from one object to another are not explained and keep stage 3's
 positions. A track in a group takes the motion's positions in every frame the motion is solved in, its hidden frames
-too. The groups of one object on either side of a gap no track crosses are then joined
-(:mod:`trackingworld.optim.rigid_bridge`).
+too. A group whose points fall apart, in the object's frame, into pieces farther apart than ``split_gap`` times
+their depth is two objects that one motion explained where both were seen (:func:`pieces`): it is cut to its
+largest piece, grown again from that. The groups of one object on either side of a gap no track crosses are then
+joined (:mod:`trackingworld.optim.rigid_bridge`).
 
 Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
 poses camera-to-world ``[T,4,4]`` (OpenCV axes).
@@ -37,6 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from trackingworld.geometry import camera_depths, invert_pose, rigid_transform, transform
@@ -96,6 +99,10 @@ class RigidSettings:
     median_scale: bool = False
     # groups of one object on either side of a gap no track crosses, joined (optim.rigid_bridge; None: not joined)
     bridge: BridgeSettings | None = field(default_factory=BridgeSettings)
+    # a group whose points, in the object's frame, fall apart into pieces more than split_gap x their median depth
+    # apart, the others holding split_share of it or more, is cut to its largest piece (0: never)
+    split_gap: float = 0.1
+    split_share: float = 0.1
 
 
 def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
@@ -302,10 +309,12 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         members = np.flatnonzero(inl)
         return members, pts[members]
 
-    def refit(members, iters=None):
-        """The rigid motion of the tracks ``members`` (:func:`fit_motion`; ``iters`` None: the full fit)."""
-        return fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s, rng, dtype,
-                          device, iters, None if keys is None else keys[members])
+    def refit(members, iters=None, draws=None):
+        """The rigid motion of the tracks ``members`` (:func:`fit_motion`; ``iters`` None: the full fit; ``draws``
+        the generator of its draw, None: the search's)."""
+        return fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s,
+                          rng if draws is None else draws, dtype, device, iters,
+                          None if keys is None else keys[members])
 
     def settled(grown, members) -> bool:
         """Whether a group changed by no more than ``settle`` of its tracks from ``members`` to ``grown``."""
@@ -343,7 +352,40 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             members = grown
             if done:
                 break
-        return ((members, P, motion) if len(members) >= s.min_tracks else None), near
+        if s.split_gap > 0 and len(members) >= s.min_tracks:
+            members, P, motion = one_piece(members, P, motion)
+        return ((members, P, motion) if motion is not None and len(members) >= s.min_tracks else None), near
+
+    def one_piece(members, P, motion):
+        """The group cut to its largest piece in the object frame (:func:`pieces`) where the others hold
+        ``split_share`` of it or more, its motion fitted to that piece again and the group grown from it again
+        (cut once more, not grown, if it is two pieces again): two objects that one rigid motion explains over the
+        frames both are seen in (a spin about an axis between two objects that pass each other the opposite way),
+        the group then placing each in the frames where only the other is seen."""
+        for again in (True, False):
+            if not np.isfinite(P).all():
+                break
+            gap = s.split_gap * float(np.median(z[members, qf[members]]))
+            label = pieces(P, gap)
+            sizes = np.bincount(label)
+            big = int(np.argmax(sizes))
+            if sizes[big] > (1 - s.split_share) * len(members):
+                break
+            if log:
+                log(f"group of {len(members)} tracks cut to its largest piece of {sizes[big]} "
+                    f"({len(sizes)} pieces {gap:.2f} m apart)")
+            piece = members[label == big]
+            # drawn from a generator of its own: the search's stream, which every later group's fits draw from, stays
+            # the one it would be without the cut
+            motion = refit(piece, draws=np.random.default_rng(s.rng_seed + 1))
+            if motion is None:
+                return piece, P, None
+            if again:
+                members, P = grow(piece, motion)
+            else:
+                ok, P = explained(piece, motion)
+                members = piece[ok]
+        return members, P, motion
 
     groups = np.full(N, -1)
     objects: list[RigidObject] = []
@@ -403,3 +445,29 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         sub[keep] = pos[keep]
         out[o.members] = sub
     return out, groups, info
+
+
+def pieces(P: np.ndarray, gap: float) -> np.ndarray:
+    """``[n]`` int: the connected piece of each point ``P [n,3]`` (metres), points in the same or touching cubes of
+    side ``gap`` joined (26 neighbours): two points within ``gap`` of each other are always joined, two more than
+    ``2 * sqrt(3) * gap`` apart never directly. Linear in the points, unlike the pairs within a radius of a dense
+    cloud (scipy's connected components over the occupied cubes)."""
+    cell = np.floor(P / gap).astype(np.int64)
+    cell -= cell.min(0) - 1  # every neighbour's coordinate stays >= 0
+    span = cell.max(0) + 2
+    key = (cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]
+    cubes, of = np.unique(key, return_inverse=True)
+    rows, cols = [], []
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                if (dx, dy, dz) <= (0, 0, 0):  # each pair of touching cubes once, from one side
+                    continue
+                near = cubes + (dx * span[1] + dy) * span[2] + dz
+                at = np.minimum(np.searchsorted(cubes, near), len(cubes) - 1)
+                hit = cubes[at] == near
+                rows.append(np.flatnonzero(hit))
+                cols.append(at[hit])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(cubes), len(cubes)))
+    return connected_components(g, directed=False)[1][of.reshape(-1)]

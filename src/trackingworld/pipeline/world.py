@@ -333,6 +333,8 @@ def check_optim(o: OptimConfig) -> None:
         raise InputError(f"photo_moving_share {o.photo_moving_share}: a share from 0 (off) to 1")
     if not o.mask_core_px >= 0:
         raise InputError(f"mask_core_px {o.mask_core_px}: the depth inside the masks (px) is 0 (off) or more")
+    if not o.rigid_split_gap >= 0:
+        raise InputError(f"rigid_split_gap {o.rigid_split_gap}: a fraction of the depth, 0 (never) or more")
     if o.rigid_second_pass < 0:
         raise InputError(f"rigid_second_pass {o.rigid_second_pass}: the seeds are 0 (one pass) or more")
     if o.dc_edge_sigma_px < 0:
