@@ -5,18 +5,23 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
-from trackingworld.geometry import camera_depths, intrinsics_matrix, invert_pose, look_at, transform
+from trackingworld.geometry import camera_depths, intrinsics_matrix, invert_pose, look_at, project, transform
 from trackingworld.optim.rigid import RigidSettings, initial_motion, rigid_movers
 
 T, W, H = 16, 320, 240
+
+
+def _camera():
+    """K and the camera-to-world poses [T,4,4] of a camera 3 m from the origin moving sideways 5 cm a frame."""
+    K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
+    return K, np.stack([look_at(np.array([0.05 * t, 0.0, -3.0]), np.array([0.05 * t, 0.0, 0.0])) for t in range(T)])
 
 
 def _scene(rigid: bool, seed: int = 0):
     """A box of points seen by a camera moving sideways; it moves and spins (rigid) or every point wanders
     on its own (not rigid). Returns uv, vis, true world points [N,T,3], poses, K, query frames."""
     rng = np.random.default_rng(seed)
-    K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
-    poses = np.stack([look_at(np.array([0.05 * t, 0.0, -3.0]), np.array([0.05 * t, 0.0, 0.0])) for t in range(T)])
+    K, poses = _camera()
     P = rng.uniform(-0.4, 0.4, (600, 3))  # object frame
     P[:, 2] = np.where(rng.random(600) < 0.5, -0.4, P[:, 2])  # much of it on the face towards the camera
     X = np.empty((len(P), T, 3))
@@ -25,9 +30,8 @@ def _scene(rigid: bool, seed: int = 0):
         X[:, t] = P @ R.T + np.array([0.03 * t, 0.01 * t, 0.02 * t])
         if not rigid:
             X[:, t] += rng.normal(0, 0.02 * np.sqrt(t), (len(P), 3))
-    Xc = transform(invert_pose(poses)[None], X)
-    uv = np.stack([K[0, 0] * Xc[..., 0] / Xc[..., 2] + K[0, 2], K[1, 1] * Xc[..., 1] / Xc[..., 2] + K[1, 2]], -1)
-    return uv, np.ones((len(P), T), bool), X, Xc[..., 2], poses, K, rng.integers(0, T, len(P))
+    uv, z = project(transform(invert_pose(poses)[None], X), K)
+    return uv, np.ones((len(P), T), bool), X, z, poses, K, rng.integers(0, T, len(P))
 
 
 def _lift(uv, z, poses, K):
@@ -285,8 +289,7 @@ def _two_objects():
     goes on and the second (seen in all 16) turns away: one rigid motion explains every track where it is seen.
     Returns uv, vis, true world points [N,T,3], poses, K, query frames, the first box's tracks [N] bool."""
     rng = np.random.default_rng(3)
-    K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
-    poses = np.stack([look_at(np.array([0.05 * t, 0.0, -3.0]), np.array([0.05 * t, 0.0, 0.0])) for t in range(T)])
+    K, poses = _camera()
     n_a, n_b = 150, 120
     P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
     P[:n_a, 0] -= 0.5
@@ -296,13 +299,12 @@ def _two_objects():
     X = np.repeat(P[:, None], T, 1) + together[None]
     X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
     X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
-    Xc = transform(invert_pose(poses)[None], X)
-    uv = np.stack([K[0, 0] * Xc[..., 0] / Xc[..., 2] + K[0, 2], K[1, 1] * Xc[..., 1] / Xc[..., 2] + K[1, 2]], -1)
+    uv, z = project(transform(invert_pose(poses)[None], X), K)
     vis = np.ones((n_a + n_b, T), bool)
     vis[:n_a, 10:] = False
     qf = rng.integers(0, 10, n_a + n_b)  # both queried where both are seen
     first = np.r_[np.ones(n_a, bool), np.zeros(n_b, bool)]
-    return uv, vis, X, Xc[..., 2], poses, K, qf, first
+    return uv, vis, X, z, poses, K, qf, first
 
 
 def test_a_group_of_two_objects_one_motion_explains_is_cut_to_its_largest_piece():
