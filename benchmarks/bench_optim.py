@@ -81,6 +81,7 @@ ROWS = {
     "no rigid-mover placement (--no-rigid-movers)": ("trackingworld", {"rigid_movers": False}, ""),
     "rigid groups not joined across gaps (--no-rigid-bridge)": ("trackingworld", {"rigid_bridge": False}, ""),
     "one search for rigid groups (--rigid-second-pass 0)": ("trackingworld", {"rigid_second_pass": 0}, ""),
+    "rigid groups never cut in pieces (--rigid-split-gap 0)": ("trackingworld", {"rigid_split_gap": 0.0}, ""),
     f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),

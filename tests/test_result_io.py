@@ -25,7 +25,8 @@ def test_round_trip(tmp_path):
         got = getattr(back, k)
         assert got.dtype == Result.DTYPES[k], k
         np.testing.assert_array_equal(got, v)
-    assert set(np.load(tmp_path / "result.npz").files) == set(Result.DTYPES)
+    assert set(np.load(tmp_path / "result.npz").files) == set(Result.DTYPES) - {"label_step"}  # optional: none given
+    assert back.label_step is None
     lines = (tmp_path / "poses_tum.txt").read_text().splitlines()
     assert len(lines) == 4 and lines[0].split() == ["0", *(["0.000000000"] * 6), "1.000000000"]
 
@@ -120,3 +121,13 @@ def test_large_arrays_deflated_in_parts_on_threads_read_back_the_same(tmp_path, 
     atomic.write_npz(tmp_path / "b.npz", **arrays)
     ref = np.load(tmp_path / "b.npz")
     assert all(np.array_equal(ref[k], back[k]) for k in arrays)
+
+
+def test_label_step_round_trip_and_shape(tmp_path):
+    r = Result(**{**make_result().as_dict(), "label_step": np.array([0, 4, 5, 0, 8])})
+    save_result(tmp_path, r)
+    back = load_result(tmp_path)
+    assert back.label_step.dtype == np.int8
+    np.testing.assert_array_equal(back.label_step, [0, 4, 5, 0, 8])
+    with pytest.raises(ValueError, match="label_step has shape"):
+        Result(**{**make_result().as_dict(), "label_step": np.zeros(3)})

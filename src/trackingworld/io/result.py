@@ -14,6 +14,8 @@ colors         uint8    [N,3]        RGB at the query frame
 poses_c2w      float32  [T,4,4]      camera-to-world, last row 0 0 0 1
 intrinsics     float32  [3,3]        pinhole K at the input resolution
 depth          float32  [T,H,W]      temporally consistent video depth, metres
+label_step     int8     [N]          optional: the step of the lifting that set is_dynamic (an index
+                                     into ``optim.label_steps.LABEL_STEPS``; 0: the masks' label)
 =============  =======  ===========  ==================================================================
 """
 
@@ -32,6 +34,7 @@ from trackingworld.io.atomic import atomic_path, write_npz
 RESULT_FILE = "result.npz"
 TUM_FILE = "poses_tum.txt"
 CONFIG_FILE = "config.json"
+OPTIONAL = ("label_step",)  # keys a result may lack
 
 
 @dataclass
@@ -45,6 +48,7 @@ class Result:
     poses_c2w: np.ndarray
     intrinsics: np.ndarray
     depth: np.ndarray
+    label_step: np.ndarray | None = None  # not written by the camera-centric baseline
 
     DTYPES = {
         "tracks_2d": np.float32,
@@ -56,11 +60,13 @@ class Result:
         "poses_c2w": np.float32,
         "intrinsics": np.float32,
         "depth": np.float32,
+        "label_step": np.int8,
     }
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            setattr(self, f.name, np.ascontiguousarray(getattr(self, f.name), dtype=self.DTYPES[f.name]))
+            if getattr(self, f.name) is not None:
+                setattr(self, f.name, np.ascontiguousarray(getattr(self, f.name), dtype=self.DTYPES[f.name]))
         self.poses_c2w[:, 3, :] = (0.0, 0.0, 0.0, 1.0)
         self.validate()
 
@@ -85,8 +91,11 @@ class Result:
             "poses_c2w": (T, 4, 4),
             "intrinsics": (3, 3),
             "depth": (T, H, W),
+            "label_step": (N,),
         }
         for k, shape in expect.items():
+            if getattr(self, k) is None:
+                continue
             got = getattr(self, k).shape
             if got != shape:
                 raise ValueError(f"result field {k} has shape {got}, expected {shape}")
@@ -97,7 +106,7 @@ class Result:
             raise ValueError("result field query_frame out of range")
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
 def tum_lines(poses_c2w: np.ndarray) -> str:
@@ -130,10 +139,10 @@ def load_result(path: str | os.PathLike) -> Result:
         raise InputError(f"{path}: no such result file")
     try:
         with np.load(path) as z:
-            missing = [f.name for f in fields(Result) if f.name not in z.files]
+            missing = [f.name for f in fields(Result) if f.name not in z.files and f.name not in OPTIONAL]
             if missing:
                 raise InputError(f"{path}: not a trackingworld result (missing keys: {', '.join(missing)})")
-            return Result(**{f.name: z[f.name] for f in fields(Result)})
+            return Result(**{f.name: z[f.name] for f in fields(Result) if f.name in z.files})
     except (OSError, ValueError) as e:
         if isinstance(e, InputError):
             raise

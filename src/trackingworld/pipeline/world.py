@@ -22,6 +22,7 @@ from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
 from trackingworld.optim import lie, stage2
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives
+from trackingworld.optim.label_steps import LabelSteps
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, depth_in_mask, label_tracks
 from trackingworld.optim.parallel import worker_threads
 from trackingworld.optim.stage1 import initial_poses
@@ -214,15 +215,19 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             Dfit = corrected_prior(D, uv, vis, fields)
     thinned = None  # the static tracks' thinned observations (reference_ratios), made by the depth-mover test
     dynamic = labels == DYNAMIC
+    steps = LabelSteps(dynamic)  # which step set each label (result.npz's label_step)
     dynamic[s2[moving_s2]] = True
+    steps.after("stage2", dynamic)
     fits = StaticFits(uv, Dfit, K, R, t, cfg, device)  # the static fits from here on: poses held
     with tm("classify"):
         core = None
         if cfg.mask_core_px > 0:  # the masks' cores: their dynamic label stands
             core = (labels == DYNAMIC) & (depth_in_mask(tr.tracks, qf, masks) >= cfg.mask_core_px)
         vis = classify_masked(labels, vis, qf, fits, dynamic, xyz, info, p.offsets, core)
+        steps.after("classify", dynamic)
     with tm("rebuild_static"):
         vis, once = rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits, dynamic, xyz, info, p.offsets)
+        steps.after("rebuild_static", dynamic)
     if cfg.depth_mover_log > 0:
         with tm("depth_movers"):
             # static tracks whose fitted depth disagrees with the prior region by region: movers along the
@@ -232,6 +237,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
                                                prior.shape[1:], replace(cfg, depth_mover_range_px=reach), prior)
             dynamic[cand[movers]] = True
+            steps.after("depth_movers", dynamic)
             info["depth_movers"] = int(movers.sum())
             info["depth_mover_range_px"] = reach
             if cfg.verbose:
@@ -243,6 +249,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     if cfg.own_test:
         with tm("rebuild_static"):
             vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:])
+            steps.after("vote", dynamic)
     if cfg.static_outliers and p.offsets:
         with tm("static_outliers"):
             vis = drop_off_point(vis, qf, fits, dynamic, xyz, info)
@@ -279,18 +286,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             # joined the static tracks and left the dynamic ones: default seed 2, dynamic world accuracy 89.0 -> 87.7)
             uv, vis, _ = photo_rescue(uv, vis, qf, Dfit, poses, K, frames, masks, cfg, dynamic, xyz, info, labels,
                                       depth)
+            steps.after("photo_static", dynamic)
     if cfg.occluded_static_frames > 0:
         with tm("occluded_static"):
             # dynamic tracks that are static points the tracker followed onto a mover passing in front of them; last
             # too, for the same reason, and it reads the video depth
             uv, vis, _ = occlusion_rescue(uv, vis, qf, depth, poses, K, cfg, dynamic, xyz, info)
+            steps.after("occluded_static", dynamic)
     if cfg.photo_moving_share > 0 and frames is not None:
         with tm("photo_moving"):
             # short static tracks whose static point does not show its colour where it should be seen: movers the
             # masks missed (labels only, after stage 3: it reads the video depth)
             photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg, dynamic, labels, info)
+            steps.after("photo_moving", dynamic)
+    info["label_steps"] = steps.counts(dynamic)
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
-            "visible": vis, "tracks_2d": uv, "info": info}
+            "visible": vis, "tracks_2d": uv, "label_step": steps.step, "info": info}
 
 
 def check_optim(o: OptimConfig) -> None:
@@ -378,5 +389,5 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     return Result(
         tracks_2d=inp.to_input_pixels(out["tracks_2d"]), visible=out["visible"], tracks_3d=out["xyz"], query_frame=qt,
         is_dynamic=out["is_dynamic"], colors=colors, poses_c2w=out["poses_c2w"],
-        intrinsics=K_in, depth=depth,
+        intrinsics=K_in, depth=depth, label_step=out["label_step"],
     )
