@@ -8,6 +8,8 @@ import pytest
 from exact_result import exact_result, write_exact_result
 from trackingworld.cli.main import main
 from trackingworld.geometry import default_intrinsics, look_at
+from trackingworld.io.result import Result
+from trackingworld.optim.label_steps import LABEL_STEPS
 from trackingworld.viz import display as D
 from trackingworld.viz.splat import orbit_poses, splat
 
@@ -120,3 +122,23 @@ def test_viewer_server_side(tmp_path):
         assert v.trails is not None and len(v.trail_idx) == int(res.is_dynamic.sum())
     finally:
         v.stop()
+
+
+def test_points_coloured_by_the_step_that_set_their_label():
+    res, _ = exact_result()
+    idx = np.flatnonzero(res.visible[:, 2])
+    # a result without label_step: the label colours
+    plain = D.point_colors("label step", idx, 2, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic,
+                           colors=res.colors, label_step=res.label_step)
+    np.testing.assert_array_equal(plain, D.point_colors("label", idx, 2, tracks_2d=res.tracks_2d,
+                                                        is_dynamic=res.is_dynamic, colors=res.colors))
+    steps = np.zeros(res.num_tracks, np.int8)
+    steps[idx[:3]] = LABEL_STEPS.index("depth_movers")
+    steps[idx[3:5]] = LABEL_STEPS.index("photo_static")
+    res = Result(**{**res.as_dict(), "label_step": steps})
+    _, _, col = D.frame_points(res, 2, idx, len(idx), "label step")  # idx as the order: every visible track
+    np.testing.assert_array_equal(col[:3], np.tile(D.STEP_COLORS["depth_movers"][0], (3, 1)))
+    np.testing.assert_array_equal(col[3:5], np.tile(D.STEP_COLORS["photo_static"][0], (2, 1)))
+    untouched = np.where(res.is_dynamic[idx[5:]][:, None], D.DYNAMIC_COLOR, D.STATIC_COLOR)
+    np.testing.assert_array_equal(col[5:], untouched)
+    assert "depth_movers: pink" in D.step_legend()

@@ -12,10 +12,25 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackingworld.geometry import invert_pose, nearest_pixel, transform
+from trackingworld.optim.label_steps import LABEL_STEPS
 
 STATIC_COLOR = np.array([120, 150, 190], np.uint8)  # label colours: static blue-grey
 DYNAMIC_COLOR = np.array([255, 110, 20], np.uint8)  # dynamic orange
-COLOR_MODES = ("video", "video + dynamic tint", "label", "depth")
+COLOR_MODES = ("video", "video + dynamic tint", "label", "label step", "depth")
+# "label step": one colour per step of optim.label_steps.LABEL_STEPS that set the label (result.npz's label_step),
+# with its name for a legend; the masks' own label keeps the label colours' blue-grey / orange
+STEP_COLORS = {
+    "masks": None,
+    "stage2": ((214, 39, 40), "red"),
+    "classify": ((148, 103, 189), "purple"),
+    "rebuild_static": ((140, 86, 75), "brown"),
+    "depth_movers": ((227, 119, 194), "pink"),
+    "vote": ((188, 189, 34), "olive"),
+    "photo_static": ((23, 190, 207), "cyan"),
+    "occluded_static": ((44, 160, 44), "green"),
+    "photo_moving": ((255, 215, 0), "yellow"),
+}
+assert tuple(STEP_COLORS) == LABEL_STEPS
 
 
 @dataclass
@@ -83,16 +98,37 @@ def depth_colors(z: np.ndarray, lo: float | None = None, hi: float | None = None
     return lut[np.rint(v * 255).astype(np.int64)]
 
 
+def step_legend() -> str:
+    """The "label step" colours as one line of markdown (step: colour name)."""
+    return " &nbsp; ".join(f"{name}: {'label colours' if c is None else c[1]}" for name, c in STEP_COLORS.items())
+
+
+def step_colors(label_step: np.ndarray, dyn: np.ndarray) -> np.ndarray:
+    """Colours [M,3] uint8 of tracks by the step that set their label (``label_step`` [M] codes of
+    :data:`~trackingworld.optim.label_steps.LABEL_STEPS`): :data:`STEP_COLORS`, the label colours where no step
+    changed the masks' label (``dyn`` [M] bool their labels)."""
+    out = np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
+    for code, c in enumerate(STEP_COLORS.values()):
+        if c is not None:
+            out[label_step == code] = c[0]
+    return out
+
+
 def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, is_dynamic: np.ndarray,
-                 colors: np.ndarray, frame: np.ndarray | None = None, depth: np.ndarray | None = None) -> np.ndarray:
+                 colors: np.ndarray, frame: np.ndarray | None = None, depth: np.ndarray | None = None,
+                 label_step: np.ndarray | None = None) -> np.ndarray:
     """Colours [M,3] uint8 of tracks ``idx`` in frame ``t`` for a colour ``mode`` of :data:`COLOR_MODES`.
 
     ``video`` samples the current frame (the query-frame colour ``colors`` [N,3] without frames); ``label``
-    is blue-grey static / orange dynamic; ``depth`` needs the tracks' camera depths ``depth`` [M]."""
+    is blue-grey static / orange dynamic; ``label step`` colours by the step that set the label
+    (:func:`step_colors` of ``label_step`` [N]; the label colours for a result without it); ``depth`` needs the
+    tracks' camera depths ``depth`` [M]."""
     if mode not in COLOR_MODES:
         raise ValueError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
     dyn = is_dynamic[idx]
-    if mode == "label":
+    if mode == "label step" and label_step is not None:
+        return step_colors(label_step[idx], dyn)
+    if mode in ("label", "label step"):
         return np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
     if mode == "depth":
         return depth_colors(depth)
@@ -113,7 +149,7 @@ def frame_points(res, t: int, order: np.ndarray, k: int, mode: str, frame: np.nd
     pts = res.tracks_3d[idx, t]
     depth = camera_depths(pts, res.poses_c2w[t]) if mode == "depth" else None
     col = point_colors(mode, idx, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic, colors=res.colors,
-                       frame=frame, depth=depth)
+                       frame=frame, depth=depth, label_step=res.label_step)
     return idx, pts, col
 
 

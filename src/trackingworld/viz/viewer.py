@@ -149,9 +149,13 @@ class Viewer:
             self._highlight_camera()
             if self.frames is not None:
                 self.image.image = self._thumb(self.t)
+            legend = ""
+            if self.color_mode.value == "label step":
+                legend = ("\n\n" + D.step_legend() if self.res.label_step is not None
+                          else "\n\n(no label_step in this result: label colours)")
             self.info.content = (f"frame **{self.t}** / {self.T - 1} &nbsp; drawn **{len(idx):,}** of "
                                  f"{n_vis:,} visible tracks ({self.res.num_tracks:,} in all, "
-                                 f"{self.n_dynamic:,} dynamic)")
+                                 f"{self.n_dynamic:,} dynamic)" + legend)
 
     def _redraw(self) -> None:
         with self._lock:
