@@ -120,6 +120,8 @@ def test_viewer_server_side(tmp_path):
         v.color_mode.value = "label"
         assert (v.points.colors == D.DYNAMIC_COLOR).all(1).sum() == int(res.is_dynamic[v.frame_data(5)[0]].sum())
         assert v.trails is not None and len(v.trail_idx) == int(res.is_dynamic.sum())
+        v.color_mode.value = "label step"  # this result has no label_step: said in the panel
+        assert "no label_step" in v.info.content
     finally:
         v.stop()
 
