@@ -144,3 +144,17 @@ def test_points_coloured_by_the_step_that_set_their_label():
     untouched = np.where(res.is_dynamic[idx[5:]][:, None], D.DYNAMIC_COLOR, D.STATIC_COLOR)
     np.testing.assert_array_equal(col[5:], untouched)
     assert "depth_movers: pink" in D.step_legend()
+
+
+def test_tracks_video_coloured_by_label_step():
+    from trackingworld.errors import InputError
+    from trackingworld.viz.render import RenderConfig, tracks_video_frames
+
+    res, frames = exact_result()
+    with pytest.raises(InputError, match="no label_step"):
+        next(tracks_video_frames(res, frames, RenderConfig(color_by="step")))
+    steps = np.full(res.num_tracks, LABEL_STEPS.index("vote"), np.int8)  # every track: the vote's olive
+    res = Result(**{**res.as_dict(), "label_step": steps})
+    img = next(tracks_video_frames(res, frames, RenderConfig(color_by="step", max_tracks=50)))
+    olive = np.array(D.STEP_COLORS["vote"][0])
+    assert (np.abs(img.reshape(-1, 3).astype(int) - olive).max(1) <= 2).sum() > 20  # the tracks' dots

@@ -143,7 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("dir", help="result folder (holding result.npz)")
     n.add_argument("--only", nargs="+", choices=["tracks", "scene", "path"], default=["tracks", "scene", "path"],
                    help="tracks: tracks_2d.mp4, scene: scene_3d.mp4, path: camera_path.png (default: all)")
-    n.add_argument("--color-by", default=d.color_by, choices=["depth", "label"], help="colour of the 2D tracks")
+    n.add_argument("--color-by", default=d.color_by, choices=["depth", "label", "step"],
+                   help="colour of the 2D tracks (step: the step that set each label, the viewer's legend)")
     n.add_argument("--view", default=d.view, choices=VIEWS,
                    help="viewpoint of scene_3d.mp4: orbit (swings about the scene), follow (behind and above the "
                         "camera), input (the estimated camera itself) or fixed (--eye, --target)")

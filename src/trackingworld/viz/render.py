@@ -33,7 +33,7 @@ VIEWS = ("orbit", "follow", "input", "fixed")
 
 @dataclass
 class RenderConfig:
-    color_by: str = "depth"  # tracks_2d.mp4: depth | label
+    color_by: str = "depth"  # tracks_2d.mp4: depth | label | step (the step that set the label, display.STEP_COLORS)
     max_tracks: int = 600  # tracks drawn per frame in tracks_2d.mp4 (about)
     tail: int = 8  # frames of a 2D tail
     view: str = "orbit"  # scene_3d.mp4 viewpoint: orbit | follow | input | fixed (at eye, looking at target)
@@ -48,8 +48,8 @@ class RenderConfig:
 
     def validate(self) -> None:
         """One-line errors for settings that cannot render."""
-        if self.color_by not in ("depth", "label"):
-            raise InputError(f"--color-by must be depth or label, got {self.color_by!r}")
+        if self.color_by not in ("depth", "label", "step"):
+            raise InputError(f"--color-by must be depth, label or step, got {self.color_by!r}")
         if self.view not in VIEWS:
             raise InputError(f"--view must be one of {', '.join(VIEWS)}, got {self.view!r}")
         if self.view == "fixed" and self.eye is None:
@@ -87,7 +87,12 @@ def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
     idx = _track_subset(res.visible, order, cfg.max_tracks)
     uv = res.tracks_2d[idx]
     vis = res.visible[idx]
-    if cfg.color_by == "label":
+    if cfg.color_by == "step" and res.label_step is None:
+        raise InputError("--color-by step: this result has no label_step (a baseline run, or one written before "
+                         "stop 76)")
+    if cfg.color_by == "step":
+        col = D.step_colors(res.label_step[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
+    elif cfg.color_by == "label":
         col = np.where(res.is_dynamic[idx, None], D.DYNAMIC_COLOR, D.STATIC_COLOR)[:, None].repeat(res.num_frames, 1)
     else:  # depth
         z = np.stack([D.camera_depths(res.tracks_3d[idx, t], res.poses_c2w[t]) for t in range(res.num_frames)], 1)
