@@ -22,7 +22,7 @@ label_step     int8     [N]          optional: the step of the lifting that set 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,6 @@ from trackingworld.io.atomic import atomic_path, write_npz
 RESULT_FILE = "result.npz"
 TUM_FILE = "poses_tum.txt"
 CONFIG_FILE = "config.json"
-OPTIONAL = ("label_step",)  # keys a result may lack
 
 
 @dataclass
@@ -139,7 +138,8 @@ def load_result(path: str | os.PathLike) -> Result:
         raise InputError(f"{path}: no such result file")
     try:
         with np.load(path) as z:
-            missing = [f.name for f in fields(Result) if f.name not in z.files and f.name not in OPTIONAL]
+            # the fields with a default (None) are optional
+            missing = [f.name for f in fields(Result) if f.name not in z.files and f.default is MISSING]
             if missing:
                 raise InputError(f"{path}: not a trackingworld result (missing keys: {', '.join(missing)})")
             return Result(**{f.name: z[f.name] for f in fields(Result) if f.name in z.files})

@@ -98,6 +98,11 @@ def depth_colors(z: np.ndarray, lo: float | None = None, hi: float | None = None
     return lut[np.rint(v * 255).astype(np.int64)]
 
 
+def label_colors(dyn: np.ndarray) -> np.ndarray:
+    """Colours [M,3] uint8 of tracks by their label ``dyn`` [M] bool: blue-grey static, orange dynamic."""
+    return np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
+
+
 def step_legend() -> str:
     """The "label step" colours as one line of markdown (step: colour name)."""
     return " &nbsp; ".join(f"{name}: {'label colours' if c is None else c[1]}" for name, c in STEP_COLORS.items())
@@ -107,7 +112,7 @@ def step_colors(label_step: np.ndarray, dyn: np.ndarray) -> np.ndarray:
     """Colours [M,3] uint8 of tracks by the step that set their label (``label_step`` [M] codes of
     :data:`~trackingworld.optim.label_steps.LABEL_STEPS`): :data:`STEP_COLORS`, the label colours where no step
     changed the masks' label (``dyn`` [M] bool their labels)."""
-    out = np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
+    out = label_colors(dyn)
     for code, c in enumerate(STEP_COLORS.values()):
         if c is not None:
             out[label_step == code] = c[0]
@@ -129,7 +134,7 @@ def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, i
     if mode == "label step" and label_step is not None:
         return step_colors(label_step[idx], dyn)
     if mode in ("label", "label step"):
-        return np.where(dyn[:, None], DYNAMIC_COLOR, STATIC_COLOR).astype(np.uint8)
+        return label_colors(dyn)
     if mode == "depth":
         return depth_colors(depth)
     rgb = sample_colors(frame, tracks_2d[idx, t]) if frame is not None else colors[idx]

@@ -87,13 +87,13 @@ def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
     idx = _track_subset(res.visible, order, cfg.max_tracks)
     uv = res.tracks_2d[idx]
     vis = res.visible[idx]
-    if cfg.color_by == "step" and res.label_step is None:
-        raise InputError("--color-by step: this result has no label_step (a baseline run, or one written before "
-                         "stop 76)")
     if cfg.color_by == "step":
+        if res.label_step is None:
+            raise InputError("--color-by step: this result has no label_step (a baseline run, or one written before "
+                             "stop 76)")
         col = D.step_colors(res.label_step[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     elif cfg.color_by == "label":
-        col = np.where(res.is_dynamic[idx, None], D.DYNAMIC_COLOR, D.STATIC_COLOR)[:, None].repeat(res.num_frames, 1)
+        col = D.label_colors(res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     else:  # depth
         z = np.stack([D.camera_depths(res.tracks_3d[idx, t], res.poses_c2w[t]) for t in range(res.num_frames)], 1)
         zs = z[vis] if vis.any() else z.ravel()
