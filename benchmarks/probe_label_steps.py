@@ -1,7 +1,9 @@
 """Which step of the lifting set the wrong labels: the result's tracks (their query pixel on the ground truth's
 maps) by the step that last changed their label (``result.npz``'s ``label_step``, ``optim.label_steps``), counting
 the static tracks labelled dynamic (what static kept loses), the tracks on the movers the masks missed labelled
-static (what bg-mover recall loses) and the tracks on the masked movers labelled static.
+static (what bg-mover recall loses) and the tracks on the masked movers labelled static. A second table splits the
+tracks no step changed (``masks``) by the frames they are seen in: a track seen in one frame shows no motion to any
+test, one seen in more was looked at by the static side's tests (stage 2 or its rebuild) and kept.
 
     .venv/bin/python benchmarks/probe_label_steps.py bench_out/scenes/run_default17_0 bench_out/scenes/default17
 
@@ -17,6 +19,8 @@ import numpy as np
 from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.errors import InputError
 from trackingworld.optim.label_steps import LABEL_STEPS
+
+SEEN_BINS = (("1", 1, 1), ("2-3", 2, 3), ("4-9", 4, 9), ("10-", 10, 1 << 30))  # (label, first, last) frames seen
 
 
 def main(argv=None) -> int:
@@ -55,7 +59,17 @@ def main(argv=None) -> int:
         n = int((truth & wrong).sum())
         totals.append(f"{n:,} of {int(truth.sum()):,} ({100 * n / max(int(truth.sum()), 1):.2f}%)")
     lines.append("| all | " + " | ".join(totals) + " |")
-    write_results(f"probe_label_steps_{scene.name}", lines, {"lines": lines, "by_step": data})
+    seen = res.visible.sum(1)
+    untouched = res.label_step == LABEL_STEPS.index("masks")
+    lines += ["", "The tracks no step changed (`masks`), by the frames they are seen in:", "",
+              "| frames seen | " + " | ".join(name for name, _, _ in classes) + " |",
+              "|---|" + "---|" * len(classes)]
+    by_seen = {}
+    for label, lo, hi in SEEN_BINS:
+        inside = untouched & (seen >= lo) & (seen <= hi)
+        by_seen[label] = [int((inside & truth & wrong).sum()) for _, truth, wrong in classes]
+        lines.append(f"| {label} | " + " | ".join(f"{n:,}" if n else "-" for n in by_seen[label]) + " |")
+    write_results(f"probe_label_steps_{scene.name}", lines, {"lines": lines, "by_step": data, "masks_by_seen": by_seen})
     return 0
 
 
