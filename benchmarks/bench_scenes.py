@@ -19,6 +19,7 @@ changes the stem). ``--track FLAGS`` tracks the scenes with other ``trackingworl
 from __future__ import annotations
 
 import argparse
+import ast
 import hashlib
 import json
 import shlex
@@ -93,11 +94,21 @@ def tracker_code(tracker: str = "flow") -> str:
 
 
 def source_digest(package_dir: Path, skip: tuple[str, ...] = ()) -> str:
-    """A digest of the ``*.py`` files of a package folder, those named in ``skip`` left out."""
+    """A digest of the ``*.py`` files of a package folder, those named in ``skip`` left out, and of the package's
+    top-level ``trackingworld`` modules they import (``geometry``, ``image``, ...): the 2D tracker's patch sampling
+    lives in ``trackingworld.image``, so a change there makes other tracks just as a change in the tracker does."""
+    files = sorted(f for f in package_dir.glob("*.py") if f.name not in skip)
+    root = package_dir.parent
+    shared = set()
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("trackingworld."):
+                top = root / (node.module.split(".")[1] + ".py")
+                if top.is_file():
+                    shared.add(top)
     h = hashlib.sha256()
-    for f in sorted(package_dir.glob("*.py")):
-        if f.name not in skip:
-            h.update(f.read_bytes())
+    for f in files + sorted(shared):
+        h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 

@@ -1,5 +1,6 @@
 """The benchmark scripts refuse a preset the synthetic generator does not know on one line, before any work (they
-run on demand, never in the tests; only their command lines are checked here)."""
+run on demand, never in the tests; only their command lines are checked here), and the scene cache's code digest
+follows the shared modules the tracker imports."""
 
 import importlib
 import sys
@@ -43,3 +44,16 @@ def test_bench_scaling_refuses_a_bad_scene_field(scene, says, capsys, tmp_path, 
     with pytest.raises(SystemExit) as e:
         importlib.import_module("bench_scaling").main(["--scene", scene])
     assert e.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_the_cache_digest_follows_the_shared_modules_a_package_imports(tmp_path):
+    source_digest = importlib.import_module("bench_scenes").source_digest
+    (tmp_path / "tracker").mkdir()
+    (tmp_path / "tracker" / "flow.py").write_text("from trackingworld.image import sample\n")
+    (tmp_path / "image.py").write_text("def sample(): return 1\n")
+    (tmp_path / "other.py").write_text("x = 1\n")
+    before = source_digest(tmp_path / "tracker")
+    (tmp_path / "other.py").write_text("x = 2\n")  # not imported by the package: same digest
+    assert source_digest(tmp_path / "tracker") == before
+    (tmp_path / "image.py").write_text("def sample(): return 2\n")  # imported: the cached tracks are stale
+    assert source_digest(tmp_path / "tracker") != before
