@@ -103,7 +103,7 @@ class OptimConfig:
     ba_dc_parallax_rad: float = 0.0
     dc_space: str = "log"  # stage-2 depth residual: log(z / D) (default) | metres (the paper as written)
     lambda_asap: float = 5.0
-    epsilon: float = 0.1  # metres: a track whose offset norm reaches epsilon is a moving background object
+    epsilon: float = 0.1  # metres (the depth prior's units): a track whose offset norm reaches it is a moving object
     # (not in the paper) stage 2 solved a second time without the observations whose offset reached epsilon
     # (README: nearly every residual sits in the L1 part of the offsets' kernel, so a moving object's
     # observations pull on the poses as hard as the static ones). Ten synthetic scenes: world accuracy 78.99 ->

@@ -292,7 +292,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="lm: structured Gauss-Newton/Levenberg-Marquardt (fast); adam: the paper's schedule")
     g.add_argument("--clip-len", type=int, default=d.clip_len)
     g.add_argument("--inlier-px", type=float, default=d.inlier_px, help="stage-1 inlier threshold tau (px)")
-    g.add_argument("--epsilon", type=float, default=d.epsilon, help="offset (m) that marks a moving background")
+    g.add_argument("--epsilon", type=float, default=d.epsilon,
+                   help="offset that marks a moving background (metres, in the depth prior's units: with --depth "
+                        "sfm the median depth is 1)")
     g.add_argument("--offset-stat", type=_offset_stat, default=d.offset_stat,
                    help="statistic of a track's offset norms compared with epsilon: max (the paper) or pNN, a "
                         "percentile (p50 with --epsilon 0.05: fewer drifting static tracks called moving)")
