@@ -5,6 +5,7 @@ import json
 from dataclasses import replace
 from functools import partial
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -327,6 +328,9 @@ def test_full_method_beats_the_baseline(tiny_scene, tmp_path):
     # see the README's known issues; on the default scene it wins)
     timings = json.loads((tmp_path / "trackingworld" / "timings.json").read_text())
     assert {"stage1", "stage2", "stage3", "video_depth"} <= set(timings)
+    env = json.loads((tmp_path / "trackingworld" / "environment.json").read_text())
+    assert env["cv2"] == cv2.__version__ and env["packages"]["numpy"] == np.__version__
+    assert env["packages"]["torch"].split("+")[0] == torch.__version__.split("+")[0]
 
 
 def test_ablation_switches_run(tiny_scene, tmp_path):

@@ -55,3 +55,27 @@ def follow() -> None:
     """In a worker thread: OpenCV's IPP as the block of :func:`ipp_off` wants it (off inside one, OpenCV's own
     setting outside: a kept thread may have served a block before)."""
     cv2.ipp.setUseIPP(not _off.is_set())
+
+
+ENVIRONMENT_PACKAGES = ("numpy", "scipy", "torch", "opencv-contrib-python-headless", "numba")
+
+
+def environment() -> dict:
+    """What made a result besides its input and settings: the Python, the platform, and the versions of the
+    libraries whose numbers it carries (OpenCV's flow and filters, torch's solvers, numba's kernels), written as
+    ``DIR/environment.json`` by ``pipeline.run``. The dependencies are not pinned, so one input tracked on another
+    machine or day can give other last digits; this says which libraries to compare."""
+    import platform
+    from importlib import metadata
+
+    from trackingworld import __version__
+
+    versions = {}
+    for name in ENVIRONMENT_PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {"trackingworld": __version__, "python": platform.python_version(), "platform": platform.platform(),
+            "cpus": os.cpu_count(), "cv2": cv2.__version__, "cv2_threads": cv2.getNumThreads(),
+            "ipp_in_tracking": bool(cv2.ipp.useIPP()), "ipp_off_in_lifting": wanted(), "packages": versions}

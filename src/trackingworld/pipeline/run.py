@@ -20,13 +20,14 @@ from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import check_track2d, track_video
 from trackingworld.pipeline.world import check_optim, run_trackingworld
 from trackingworld.priors.resolve import resolve_priors, tracks_key
-from trackingworld.reproducible import ipp_off
+from trackingworld.reproducible import environment, ipp_off
 from trackingworld.tracking2d.base import TrackResult
 
 METHODS = {"trackingworld": run_trackingworld, "baseline": run_baseline}
 DEFAULT_METHOD = "trackingworld"
 PRIORS_DIR = "priors"  # the cache of tracks and computed priors inside the output folder
 TIMINGS_FILE = "timings.json"  # each stage's seconds; written last
+ENVIRONMENT_FILE = "environment.json"  # the library versions that made the result (reproducible.environment)
 
 
 def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: dict, verbose: bool) -> TrackResult:
@@ -95,6 +96,7 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     save_result(out_dir, result)
     write_json(out_dir / CONFIG_FILE, cfg.to_dict())
     write_json(out_dir / "priors.json", pinfo.__dict__)
+    write_json(out_dir / ENVIRONMENT_FILE, environment())
     if report:
         write_json(out_dir / "optim.json", report)
     write_json(out_dir / TIMINGS_FILE, timings)  # last: a folder with it holds a finished run (pipeline.batch)
