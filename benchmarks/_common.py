@@ -22,6 +22,7 @@ from trackingworld.io.result import Result, load_result
 from trackingworld.memory import reuse_freed_memory
 from trackingworld.pipeline.run import run
 from trackingworld.pipeline.tracks import track_video
+from trackingworld.reproducible import environment
 
 reuse_freed_memory()  # the benchmarks run the pipeline in-process with the CLI's allocator setting
 
@@ -76,7 +77,14 @@ def md_table_start(title: str, command: str, head: str) -> list[str]:
 
 
 def write_results(stem: str, lines: list[str], data) -> None:
-    """``benchmarks/results/STEM.md`` (and printed) from ``lines``, ``STEM.json`` from ``data``."""
+    """``benchmarks/results/STEM.md`` (and printed) from ``lines``, ``STEM.json`` from ``data``; both end with the
+    library versions that made them (``reproducible.environment``; in the JSON under ``"environment"`` when
+    ``data`` is a dict)."""
+    env = environment()
+    lines = [*lines, "", "Environment: " + ", ".join(f"{k} {v}" for k, v in env["packages"].items())
+             + f", Python {env['python']}, {env['cpus']} CPUs."]
+    if isinstance(data, dict):
+        data = {**data, "environment": env}
     out = Path(__file__).parent / "results"
     out.mkdir(exist_ok=True)
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
