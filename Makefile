@@ -9,14 +9,15 @@ DEMO_DIR ?= demo_out
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	# CPU wheel pinned; if a CUDA build of torch is already in the venv, pip keeps it (same version range).
 	$(BIN)/python -c "import torch" 2>/dev/null || $(BIN)/pip install -q torch==$(TORCH_VERSION)
 	# the plain OpenCV wheels share the cv2 folder with the contrib build the package needs: removed first
 	$(BIN)/pip uninstall -y -q opencv-python-headless opencv-python 2>/dev/null || true
-	$(BIN)/pip install -q -e ".[dev]"
+	# the numerical libraries at the versions the results were measured with (constraints.txt)
+	$(BIN)/pip install -q -c constraints.txt -e ".[dev]"
 	# the CPU kernels compiled now (numba caches them beside the package) rather than in the first run
 	$(BIN)/python -m trackingworld.optim.warmup
 	touch $@
