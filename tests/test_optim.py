@@ -4,6 +4,7 @@ and the full method against the camera-centric baseline on a rendered scene."""
 import json
 from dataclasses import replace
 from functools import partial
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -331,6 +332,10 @@ def test_full_method_beats_the_baseline(tiny_scene, tmp_path):
     env = json.loads((tmp_path / "trackingworld" / "environment.json").read_text())
     assert env["cv2"] == cv2.__version__ and env["packages"]["numpy"] == np.__version__
     assert env["packages"]["torch"].split("+")[0] == torch.__version__.split("+")[0]
+    # every library make setup pins is recorded
+    pinned = [line.split("==")[0] for line in (Path(__file__).parents[1] / "constraints.txt").read_text().splitlines()
+              if line and not line.startswith("#")]
+    assert pinned and set(pinned) <= set(env["packages"])
 
 
 def test_ablation_switches_run(tiny_scene, tmp_path):

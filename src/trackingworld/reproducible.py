@@ -57,14 +57,17 @@ def follow() -> None:
     cv2.ipp.setUseIPP(not _off.is_set())
 
 
-ENVIRONMENT_PACKAGES = ("numpy", "scipy", "torch", "opencv-contrib-python-headless", "numba")
+# the libraries whose numbers a result carries: torch, and every package `make setup` pins in constraints.txt
+ENVIRONMENT_PACKAGES = ("numpy", "scipy", "torch", "opencv-contrib-python-headless", "numba", "llvmlite", "av",
+                        "pyamg")
 
 
 def environment() -> dict:
     """What made a result besides its input and settings: the Python, the platform, and the versions of the
-    libraries whose numbers it carries (OpenCV's flow and filters, torch's solvers, numba's kernels), written as
-    ``DIR/environment.json`` by ``pipeline.run``. The dependencies are not pinned, so one input tracked on another
-    machine or day can give other last digits; this says which libraries to compare."""
+    libraries whose numbers it carries (OpenCV's flow and filters, torch's solvers, numba's kernels, PyAV's decoding,
+    pyamg's solve), written as ``DIR/environment.json`` by ``pipeline.run``. ``make setup`` pins them
+    (``constraints.txt``), but a plain ``pip install`` takes ``pyproject.toml``'s ranges, so one input tracked on
+    another machine can give other last digits; this says which libraries to compare."""
     import platform
     from importlib import metadata
 
