@@ -2,6 +2,7 @@
 prior replaced by its weight-free default in turn, and with nothing but the video; plus the motion masks' quality.
 
     .venv/bin/python benchmarks/bench_priors.py --preset default      # writes benchmarks/results/priors_default.md
+    .venv/bin/python benchmarks/bench_priors.py --grounded            # movers on the floor: priors_default_grounded.md
 
 All rows share one set of dense 2D tracks (computed once). Depth and 3D metrics are scale-aligned by the
 evaluation (Sim(3) from the camera trajectories; depth per the field's protocol), so an arbitrary-scale prior is
@@ -48,10 +49,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--preset", default="default", choices=sorted(PRESETS))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--grounded", action="store_true",
+                    help="the movers stand on the floor (SceneConfig.grounded_movers), as the SfM depth's contact "
+                         "rule assumes; the presets' movers float")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_priors_", a.keep)
-    scene = render_and_write(work / "scene", a.preset, a.seed)
+    extra = {"grounded_movers": True} if a.grounded else {}
+    scene = render_and_write(work / "scene", a.preset, a.seed, **extra)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
     t0 = time.perf_counter()
@@ -73,16 +78,19 @@ def main(argv=None) -> int:
         if mm.exists():
             results[name]["masks"] = mask_quality(np.load(mm)["masks"].astype(bool), gt)
     coarse = mask_quality(load_masks(inp / "masks", frames.shape[0]), gt)
-    write(results, coarse, a.preset, frames.shape, track_s)
+    write(results, coarse, a.preset, frames.shape, track_s, a.seed, a.grounded)
     return 0
 
 
-def write(results: dict, coarse: dict, preset: str, shape, track_s: float) -> None:
+def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed: int = 0,
+          grounded: bool = False) -> None:
     head = ("| priors | ATE [% path] | track depth AbsRel | video depth AbsRel | world 3D acc all / dyn | "
             "static kept [%] | bg-mover recall [%] | priors [s] | run [s] |")
     lines = md_table_start(
-        f"# Weight-free priors on the `{preset}` scene ({shape[0]} frames, {shape[2]}x{shape[1]})",
-        f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}` (dense 2D tracks computed "
+        f"# Weight-free priors on the `{preset}` scene, seed {seed}{', movers on the floor' if grounded else ''} "
+        f"({shape[0]} frames, {shape[2]}x{shape[1]})",
+        f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}"
+        f"{f' --seed {seed}' if seed else ''}{' --grounded' if grounded else ''}` (dense 2D tracks computed "
         f"once, {track_s:.1f} s, shared by every row; run time excludes them)", head)
     for name, r in results.items():
         m = r["metrics"]
@@ -103,7 +111,8 @@ def write(results: dict, coarse: dict, preset: str, shape, track_s: float) -> No
     if mq:
         lines.append(f"| motion masks (weight-free) | {mq['iou']:.3f} | {mq['recall']:.3f} | {mq['precision']:.3f} | "
                      f"{mq['bg_mover_recall']:.3f} |")
-    write_results(f"priors_{preset}", lines, results)
+    name = f"priors_{preset}" + (f"_seed{seed}" if seed else "") + ("_grounded" if grounded else "")
+    write_results(name, lines, results)
 
 
 if __name__ == "__main__":

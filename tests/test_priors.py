@@ -83,6 +83,38 @@ def test_push_pull_fills_holes_of_a_smooth_map():
     assert np.abs(dense - truth).max() < 0.2 and np.abs(dense - truth).mean() < 0.05
 
 
+def test_dynamic_regions_take_the_ground_below_each_column():
+    """SfM depth's dynamic regions (``fill_dynamic``): a floor whose depth grows up the image; two boxes that touch in
+    the image, standing at other rows, make one mask region, and each takes the floor just below its own columns (the
+    region rule gave both one value); a box cut by the image's bottom takes its neighbour columns' ground; a region
+    with no ground below any column falls back to the median of its border (``fill_region``)."""
+    from trackingworld.priors.sfm import fill_dynamic, fill_region
+
+    H, W = 60, 80
+    rows = np.arange(H, dtype=float)[:, None]
+    # the wall above row 10, the floor below it (its depth 300 / (row - 10), nearer down the image)
+    floor = np.repeat(np.log(300.0 / np.maximum(rows - 10, 6.0)), W, 1)
+    mask = np.zeros((H, W), bool)
+    mask[20:40, 10:30] = True  # a far box, standing on row 40
+    mask[25:50, 30:45] = True  # a nearer one beside it, standing on row 50
+    out = fill_dynamic(floor, mask, ring_px=3)
+    np.testing.assert_allclose(out[30, 12:28], np.median(floor[40:43, 0]))
+    np.testing.assert_allclose(out[30, 32:43], np.median(floor[50:53, 0]))
+    one = fill_region(floor, mask, ring_px=3)[30, 12]
+    assert one == fill_region(floor, mask, ring_px=3)[30, 40]  # the region rule: one value for both
+    assert not np.isclose(out[30, 12], out[30, 40])
+    # a box reaching the image's bottom where it is widest: those columns take the nearest column with ground
+    cut = np.zeros((H, W), bool)
+    cut[30:50, 50:60] = True
+    cut[40:, 54:60] = True
+    out = fill_dynamic(floor, cut, ring_px=3)
+    np.testing.assert_allclose(out[45, 57], np.median(floor[50:53, 53]))
+    # ground nowhere below: the whole bottom band
+    band = np.zeros((H, W), bool)
+    band[40:, :] = True
+    np.testing.assert_array_equal(fill_dynamic(floor, band, ring_px=3), fill_region(floor, band, ring_px=3))
+
+
 def test_disparity_alignment_recovers_depth():
     rng = np.random.default_rng(0)
     z = rng.uniform(1, 10, (3, 20, 30))

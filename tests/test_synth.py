@@ -104,3 +104,39 @@ def test_movers_turn_back_before_they_leave_the_room():
     # and they still move with the speed they were given
     steps = np.linalg.norm(np.diff(movers[0].poses[:, :3, 3], axis=0), axis=1)
     assert np.median(steps) == pytest.approx(sc.config.mover_speed, rel=1e-6)
+
+
+def test_grounded_movers_stand_on_the_floor():
+    """``grounded_movers``: every mover's lowest point is on the floor in every frame, it moves only horizontally
+    and boxes stay level; the camera path and the static primitives are the floating scene's (the same draws)."""
+    from trackingworld.synth.scene import BOX, SPHERE, make_scene
+
+    floor_y = 1.3
+    a, b = make_scene("default", 3), make_scene("default", 3, grounded_movers=True)
+    np.testing.assert_array_equal(a.poses_c2w, b.poses_c2w)
+    assert [p.name for p in a.prims] == [p.name for p in b.prims]
+    for pa, pb in zip(a.prims, b.prims, strict=True):
+        np.testing.assert_array_equal(pa.size, pb.size)
+        if not pb.moving:
+            np.testing.assert_array_equal(pa.poses, pb.poses)
+            continue
+        c = pb.poses[:, :3, 3]
+        half = pb.size[0] if pb.kind == SPHERE else pb.size[1]
+        np.testing.assert_allclose(c[:, 1] + half, floor_y, atol=1e-9)
+        assert np.linalg.norm(np.diff(c[:, [0, 2]], axis=0), axis=1).min() > 0  # it still moves
+        if pb.kind == BOX:  # level: the box's own y axis stays vertical
+            np.testing.assert_allclose(pb.poses[:, :3, 1], np.tile([0.0, 1.0, 0.0], (len(c), 1)), atol=1e-9)
+    # the floating scene's movers are not on the floor
+    assert any(abs(p.poses[0, 1, 3] + (p.size[0] if p.kind == SPHERE else p.size[1]) - floor_y) > 0.1
+               for p in a.prims if p.moving)
+
+
+def test_synth_grounded_flag(tmp_path):
+    import json
+
+    from trackingworld.cli.main import main
+
+    assert main(["synth", str(tmp_path / "g"), "--grounded", "--frames", "2", "--size", "32x24"]) == 0
+    assert json.loads((tmp_path / "g" / "scene.json").read_text())["config"]["grounded_movers"] is True
+    assert main(["synth", str(tmp_path / "f"), "--frames", "2", "--size", "32x24"]) == 0
+    assert json.loads((tmp_path / "f" / "scene.json").read_text())["config"]["grounded_movers"] is False

@@ -74,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", type=int, default=None)
     s.add_argument("--size", type=_size, default=None, help="WxH, e.g. 320x240")
     s.add_argument("--fov", type=float, default=None, help="horizontal field of view, degrees (default 60)")
+    s.add_argument("--grounded", action="store_true",
+                   help="movers stand and slide on the floor instead of floating (as people and cars do)")
 
     r = sub.add_parser("run", help="world-centric dense 3D tracking of a video")
     r.add_argument("input", nargs="+", help="video file or folder of images; several: one result folder each, "
@@ -529,7 +531,8 @@ def cmd_synth(a) -> int:
     from trackingworld.synth import render_and_write
 
     try:
-        out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov)
+        extra = {"grounded_movers": True} if a.grounded else {}
+        out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov, **extra)
     except ValueError as e:
         raise InputError(f"synth --preset {a.preset} --seed {a.seed}: {e}") from e
     print(f"scene written to {out} (inputs in {out / 'input'}, ground truth in {out / 'gt.npz'})")

@@ -12,8 +12,9 @@ Python bindings match features themselves):
    depth prior);
 5. all static dense tracks triangulated with the final poses; per frame, their depths (weighted by the
    triangulation angle) are spread to every pixel by push-pull in log depth. A dynamic region (a connected
-   component of the masks) cannot be triangulated: it takes the median depth of the static pixels just below
-   it (where an object stands on the ground, its contact), or of its whole border when nothing is below.
+   component of the masks) cannot be triangulated: each of its columns takes the depth of the static pixels just
+   below it in that column (where an object stands on the ground, its contact; ``fill_dynamic``), a column with
+   nothing below the nearest column's, and a region with no ground below it the median of its border.
 
 The scale is arbitrary (the median depth is set to 1). When the camera hardly moves (no parallax), depth
 cannot be recovered from the video: a constant depth is returned with a message saying so.
@@ -264,9 +265,10 @@ def _fill_poses(R: np.ndarray, t: np.ndarray, reg: np.ndarray) -> tuple[np.ndarr
     return R, t
 
 
-def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6) -> np.ndarray:
-    """Give each connected region of ``mask [H,W]`` one depth: the median of ``depth [H,W]`` over the static
-    ring pixels below the region's centre row, or over the whole ring."""
+def fill_region(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6) -> np.ndarray:
+    """Give each connected region of ``mask [H,W]`` one value: the median of ``depth [H,W]`` over the static
+    ring pixels below the region's centre row, or over the whole ring (the rule before stop 78, and the fallback of
+    :func:`fill_dynamic` for a region with no ground below it)."""
     out = depth.copy()
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
@@ -282,6 +284,48 @@ def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6) -> np.nd
         vals = depth[y0:y1, x0:x1][below if below.sum() >= 5 else ring]
         if len(vals):
             out[y0:y1, x0:x1][reg] = np.median(vals)
+    return out
+
+
+def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6, min_columns: int = 3,
+                 smooth_columns: int = 5) -> np.ndarray:
+    """Fill the dynamic regions of ``depth [H,W]`` (log depth, or any value that is constant up a vertical face)
+    column by column from the ground they stand on: in each image column of a connected region of ``mask [H,W]``,
+    every region pixel takes the median of the static pixels within ``ring_px`` below the region's lowest pixel
+    in that column (where the object meets the floor; y is down). The column values are median-smoothed over
+    ``smooth_columns`` columns; a column with no static pixel below it (the region reaches the image's bottom, or
+    another mask lies below) takes the nearest column's that has one. A region with fewer than ``min_columns``
+    such columns takes :func:`fill_region`'s one value.
+
+    A region holds one object or several that touch in the image, at other depths, and an object cut by the image's
+    bottom edge meets the ground only beside it: one value per column follows both, where one per region (the rule
+    before) puts two objects at one depth. On synthetic scenes whose movers stand on the floor
+    (``SceneConfig.grounded_movers``) with the ground-truth depth as the static depth, the masked movers' median
+    depth error went 11.8% -> 8.5%; in the pipeline, ``docs/priors.md``."""
+    out = depth.copy()
+    H = mask.shape[0]
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    half = smooth_columns // 2
+    fallback = None
+    for i in range(1, n):
+        x, y, w, h = stats[i, :4]
+        reg = lab[:, x:x + w] == i
+        low = H - 1 - np.argmax(reg[::-1], axis=0)  # [w] the region's lowest row in each column
+        vals = np.full(w, np.nan)
+        for c in np.flatnonzero(reg.any(0) & (low + 1 < H)):
+            rows = np.arange(low[c] + 1, min(H, low[c] + 1 + ring_px))
+            rows = rows[~mask[rows, x + c]]
+            if len(rows):
+                vals[c] = np.median(depth[rows, x + c])
+        have = np.flatnonzero(np.isfinite(vals))
+        if len(have) < min_columns:
+            fallback = fill_region(depth, mask, ring_px) if fallback is None else fallback
+            out[:, x:x + w][reg] = fallback[:, x:x + w][reg]
+            continue
+        smooth = np.array([np.nanmedian(vals[max(0, c - half):c + half + 1]) for c in have])
+        nearest = np.abs(np.arange(w)[:, None] - have[None]).argmin(1)  # [w] index into have
+        rr, cc = np.nonzero(reg)
+        out[rr, x + cc] = smooth[nearest[cc]]
     return out
 
 
