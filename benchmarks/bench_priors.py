@@ -52,6 +52,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grounded", action="store_true",
                     help="the movers stand on the floor (SceneConfig.grounded_movers), as the SfM depth's contact "
                          "rule assumes; the presets' movers float")
+    ap.add_argument("--sfm-contact", default="column", choices=["column", "region"],
+                    help="the SfM depth's rule for the dynamic regions (InputConfig.sfm_contact)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_priors_", a.keep)
@@ -68,7 +70,7 @@ def main(argv=None) -> int:
     for name, (method, *specs) in ROWS.items():
         keys = ("depth", "masks", "intrinsics")
         kw = {k: (given[k] if s == "given" else s) for k, s in zip(keys, specs, strict=True)}
-        cfg = RunConfig(method=method, inputs=InputConfig(input=str(inp / "frames"), **kw),
+        cfg = RunConfig(method=method, inputs=InputConfig(input=str(inp / "frames"), sfm_contact=a.sfm_contact, **kw),
                         track2d=Track2DConfig(tracker="file", tracks_file=str(tracks)),
                         optim=OptimConfig(verbose=False))
         out = work / f"run{len(results)}"
@@ -78,19 +80,20 @@ def main(argv=None) -> int:
         if mm.exists():
             results[name]["masks"] = mask_quality(np.load(mm)["masks"].astype(bool), gt)
     coarse = mask_quality(load_masks(inp / "masks", frames.shape[0]), gt)
-    write(results, coarse, a.preset, frames.shape, track_s, a.seed, a.grounded)
+    write(results, coarse, a.preset, frames.shape, track_s, a.seed, a.grounded, a.sfm_contact)
     return 0
 
 
 def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed: int = 0,
-          grounded: bool = False) -> None:
+          grounded: bool = False, contact: str = "column") -> None:
     head = ("| priors | ATE [% path] | track depth AbsRel | video depth AbsRel | world 3D acc all / dyn | "
             "static kept [%] | bg-mover recall [%] | priors [s] | run [s] |")
     lines = md_table_start(
         f"# Weight-free priors on the `{preset}` scene, seed {seed}{', movers on the floor' if grounded else ''} "
         f"({shape[0]} frames, {shape[2]}x{shape[1]})",
         f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}"
-        f"{f' --seed {seed}' if seed else ''}{' --grounded' if grounded else ''}` (dense 2D tracks computed "
+        f"{f' --seed {seed}' if seed else ''}{' --grounded' if grounded else ''}"
+        f"{f' --sfm-contact {contact}' if contact != 'column' else ''}` (dense 2D tracks computed "
         f"once, {track_s:.1f} s, shared by every row; run time excludes them)", head)
     for name, r in results.items():
         m = r["metrics"]
@@ -111,7 +114,8 @@ def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed:
     if mq:
         lines.append(f"| motion masks (weight-free) | {mq['iou']:.3f} | {mq['recall']:.3f} | {mq['precision']:.3f} | "
                      f"{mq['bg_mover_recall']:.3f} |")
-    name = f"priors_{preset}" + (f"_seed{seed}" if seed else "") + ("_grounded" if grounded else "")
+    name = (f"priors_{preset}" + (f"_seed{seed}" if seed else "") + ("_grounded" if grounded else "")
+            + (f"_{contact}" if contact != "column" else ""))
     write_results(name, lines, results)
 
 

@@ -182,6 +182,12 @@ def test_sfm_on_rendered_scene(tmp_path, small_scene):
     err = lambda d: np.median(np.abs(d * np.median(gt["depth"][st] / d[st]) - gt["depth"])[st] / gt["depth"][st])  # noqa: E731
     assert err(r.depth) < 0.15  # weight-free, arbitrary scale (measured 0.040)
     assert camera_metrics(r.poses_c2w, gt["poses_c2w"])["ate_pct_path"] < 3  # (measured 0.26)
+    # the rule before stop 78 (one value per dynamic region): the same reconstruction, other values in the masks only
+    old = sfm_depth(tr, static_tracks(tr, masks), gt["K"], masks, SfMConfig(verbose=False, contact="region"))
+    np.testing.assert_array_equal(old.depth[~masks], r.depth[~masks])
+    assert not np.array_equal(old.depth[masks], r.depth[masks])
+    with pytest.raises(ValueError, match="contact"):
+        sfm_depth(tr, static_tracks(tr, masks), gt["K"], masks, SfMConfig(verbose=False, contact="nearest"))
     # the slow camera: too little parallax, and SfM says so instead of reconstructing noise
     slow_scene, _, slow = small_scene
     slow_masks = load_masks(slow_scene / "input" / "masks", 20)

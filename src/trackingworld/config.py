@@ -45,6 +45,9 @@ class InputConfig:
     # tracks (priors.focal), falling back to default_fov_deg when the video does not determine it
     self_calibrate: bool = True
     default_fov_deg: float = 60.0
+    # the SfM depth's dynamic regions: "column" (each column the ground just below it) | "region" (one value each,
+    # before stop 78); priors.sfm.SfMConfig.contact
+    sfm_contact: str = "column"
     cache: bool = True  # keep tracks and computed priors in DIR/priors/ for re-runs
 
 

@@ -100,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "else --fov)")
     g.add_argument("--fov", type=float, default=60.0,
                    help="horizontal field of view (deg) assumed when nothing better is known (default 60)")
+    g.add_argument("--sfm-contact", choices=["column", "region"], default="column",
+                   help="how the SfM depth fills a dynamic region: column (default: each column takes the ground "
+                   "just below it) | region (one value each, the median of its border below; before stop 78)")
     g.add_argument("--no-self-calibration", action="store_true",
                    help="with --intrinsics auto, assume --fov instead of estimating the focal length from the video")
     g.add_argument("--no-cache", action="store_true",
@@ -549,7 +552,7 @@ def cmd_run(a) -> int:
         inputs=InputConfig(input=a.input[0], depth=a.depth, masks=a.masks, mask_prompt=a.mask_prompt,
                            intrinsics=a.intrinsics, max_frames=a.max_frames, frame_stride=a.frame_stride,
                            resize=a.resize, cache=not a.no_cache, default_fov_deg=a.fov,
-                           self_calibrate=not a.no_self_calibration),
+                           self_calibrate=not a.no_self_calibration, sfm_contact=a.sfm_contact),
         track2d=_track_config(a), optim=_optim_config(a),
     )
     _apply_threads(a)

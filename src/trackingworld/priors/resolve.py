@@ -167,7 +167,7 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
     need_sfm = dsrc == "sfm" or (pred is not None and pred.kind == "disparity")
     sfm = None
     if need_sfm:
-        scfg = SfMConfig(verbose=verbose)
+        scfg = SfMConfig(verbose=verbose, contact=ic.sfm_contact)
         key = {**base_key, "masks": hashlib.sha1(np.packbits(masks)).hexdigest(), "K": K.round(6).tolist(),
                "cfg": _settings(scfg)}
 

@@ -46,6 +46,9 @@ class SfMConfig:
     reproj_px: float = 2.0  # inlier threshold of RANSAC, PnP and triangulation
     min_angle_deg: float = 1.0  # rays of a triangulated point must span this angle
     ba_iters: int = 15
+    # how a dynamic region takes its depth: "column" (each column the ground just below it, fill_dynamic) or
+    # "region" (one value per region, fill_region: the rule before stop 78)
+    contact: str = "column"
     verbose: bool = True
 
 
@@ -329,11 +332,17 @@ def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6, min_colu
     return out
 
 
+CONTACT_RULES = {"column": fill_dynamic, "region": fill_region}
+
+
 def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndarray,
               cfg: SfMConfig | None = None) -> SfMResult:
     """Depth maps ``[T,H,W]`` (median 1, arbitrary scale) from the dense tracks ``tr`` of a video whose dynamic
     masks are ``masks [T,H,W]``; ``static [N]`` marks the tracks off the masks."""
     cfg = cfg or SfMConfig()
+    if cfg.contact not in CONTACT_RULES:
+        raise ValueError(f"SfMConfig.contact {cfg.contact!r}: choose from {', '.join(CONTACT_RULES)}")
+    fill = CONTACT_RULES[cfg.contact]
     T, H, W = masks.shape
     rec, info = reconstruct(tr, static, K, cfg)
     if rec is None:
@@ -359,7 +368,7 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
         w = np.flatnonzero(vis[sel, f] & (z_all[:, f] > 0))
         if len(w) < 10:
             continue
-        depth[f] = np.exp(fill_dynamic(densify(tr.tracks[sel[w], f], np.log(z_all[w, f] / scale), H, W, weight[w]),
+        depth[f] = np.exp(fill(densify(tr.tracks[sel[w], f], np.log(z_all[w, f] / scale), H, W, weight[w]),
                                        masks[f]))
     poses = invert_pose(pose_from_rt(R, t / scale))
     info.update(triangulated=int(len(sel)), scale=scale)
