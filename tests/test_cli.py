@@ -196,3 +196,22 @@ def test_flow_tracker_settings_out_of_range_are_refused_before_any_work(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "flow_refind_patch_diff -1.0" in err[0]
     assert not (tmp_path / "t.npz").exists()
+
+
+def test_track2d_writes_the_trackers_pixels_to_the_bit(tiny_scene, tmp_path):
+    """At the video's own size `track2d` writes the tracker's positions unchanged: the conversion to input pixels,
+    ``(x + 0.5) * 1 - 0.5`` in float32, used to move 1 in 5 of them by a unit in the last place (`hard` 20), and a
+    run on such a file then differs from a run on the tracks themselves. With ``--resize`` the positions are scaled
+    to the input's pixels."""
+    from trackingworld.config import InputConfig, Track2DConfig
+    from trackingworld.pipeline.inputs import load_inputs
+    from trackingworld.pipeline.tracks import track_video
+
+    frames = tiny_scene / "input" / "frames"
+    assert main(["track2d", str(frames), "--out", str(tmp_path / "t.npz"), "--quiet"]) == 0
+    inp = load_inputs(InputConfig(input=str(frames)), verbose=False)
+    tr = track_video(inp.frames, Track2DConfig(), verbose=False)
+    np.testing.assert_array_equal(np.load(tmp_path / "t.npz")["tracks"], tr.tracks)
+    half = load_inputs(InputConfig(input=str(frames), resize=64), verbose=False)
+    uv = np.array([[0.0, 0.0], [31.5, 10.25]], np.float32)
+    np.testing.assert_allclose(half.to_input_pixels(uv), [[0.5, 0.5], [63.5, 21.0]])

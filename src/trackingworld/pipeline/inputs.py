@@ -39,8 +39,12 @@ class Inputs:
         return self.size_in[0] / self.frames.shape[2], self.size_in[1] / self.frames.shape[1]
 
     def to_input_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels ``[...,2]`` at the processing resolution -> the input's (pixel centres kept), float32; unchanged to
+        the bit when the video is processed at its own size (``(x + 0.5) * 1 - 0.5`` in float32 is not always x)."""
         sx, sy = self.scale
         out = uv.astype(np.float32).copy()
+        if sx == 1 and sy == 1:
+            return out
         out[..., 0] = (uv[..., 0] + 0.5) * sx - 0.5
         out[..., 1] = (uv[..., 1] + 0.5) * sy - 0.5
         return out
