@@ -304,7 +304,7 @@ def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6, min_colu
     bottom edge meets the ground only beside it: one value per column follows both, where one per region (the rule
     before) puts two objects at one depth. On synthetic scenes whose movers stand on the floor
     (``SceneConfig.grounded_movers``) with the ground-truth depth as the static depth, the masked movers' median
-    depth error went 11.8% -> 8.5%; in the pipeline, ``docs/priors.md``."""
+    absolute log-depth error went 0.118 -> 0.085; in the pipeline, ``docs/priors.md`` (stop 78)."""
     out = depth.copy()
     H = mask.shape[0]
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -369,7 +369,7 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
         if len(w) < 10:
             continue
         depth[f] = np.exp(fill(densify(tr.tracks[sel[w], f], np.log(z_all[w, f] / scale), H, W, weight[w]),
-                                       masks[f]))
+                               masks[f]))
     poses = invert_pose(pose_from_rt(R, t / scale))
     info.update(triangulated=int(len(sel)), scale=scale)
     msg = "depth from structure from motion: the scale is arbitrary (median depth 1)"
