@@ -82,7 +82,8 @@ def write_results(stem: str, lines: list[str], data) -> None:
     ``data`` is a dict)."""
     env = environment()
     lines = [*lines, "", "Environment: " + ", ".join(f"{k} {v}" for k, v in env["packages"].items())
-             + f", Python {env['python']}, {env['cpus']} CPUs."]
+             + f", Python {env['python']}, {env['cpus']} CPUs ({env['cpu']['model']}; OpenCV's "
+               f"{env['ipp'].split(' (')[0]})."]
     if isinstance(data, dict):
         data = {**data, "environment": env}
     out = Path(__file__).parent / "results"

@@ -332,6 +332,7 @@ def test_full_method_beats_the_baseline(tiny_scene, tmp_path):
     env = json.loads((tmp_path / "trackingworld" / "environment.json").read_text())
     assert env["cv2"] == cv2.__version__ and env["packages"]["numpy"] == np.__version__
     assert env["packages"]["torch"].split("+")[0] == torch.__version__.split("+")[0]
+    assert env["ipp"] == cv2.ipp.getIppVersion() and set(env["cpu"]) == {"model", "simd"}
     # every library make setup pins is recorded
     pinned = [line.split("==")[0] for line in (Path(__file__).parents[1] / "constraints.txt").read_text().splitlines()
               if line and not line.startswith("#")]

@@ -71,3 +71,13 @@ def test_two_runs_write_the_same_result_to_the_bit(tiny_scene, tmp_path):
     assert a.files == b.files
     for key in a.files:
         assert np.array_equal(a[key], b[key], equal_nan=True), key
+
+
+def test_cpu_info_reads_the_model_and_the_vector_extensions(tmp_path):
+    from trackingworld.reproducible import cpu_info
+
+    f = tmp_path / "cpuinfo"
+    f.write_text("processor\t: 0\nmodel name\t: Test CPU 9000\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f\n\n"
+                 "processor\t: 1\nmodel name\t: Test CPU 9000\nflags\t\t: fpu sse4_2\n")
+    assert cpu_info(str(f)) == {"model": "Test CPU 9000", "simd": ["sse4_2", "avx", "avx2", "fma", "avx512f"]}
+    assert cpu_info(str(tmp_path / "missing"))["simd"] == []

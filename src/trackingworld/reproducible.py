@@ -62,6 +62,32 @@ ENVIRONMENT_PACKAGES = ("numpy", "scipy", "torch", "opencv-contrib-python-headle
                         "pyamg")
 
 
+# the vector extensions whose presence changes the code paths OpenCV (IPP), numpy and torch dispatch to, and so
+# their last bits: one input, one code and one set of libraries gave other last digits on two machines (stop 78)
+SIMD_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni", "avx512_bf16",
+              "amx_tile")
+
+
+def cpu_info(cpuinfo: str = "/proc/cpuinfo") -> dict:
+    """``{"model": str | None, "simd": [flags]}``: the CPU's model name and which of :data:`SIMD_FLAGS` it has, read
+    from ``cpuinfo`` (Linux); the platform's processor string and no flags elsewhere."""
+    import platform
+
+    try:
+        text = open(cpuinfo).read()
+    except OSError:
+        return {"model": platform.processor() or None, "simd": []}
+    model, flags = None, set()
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key == "model name" and model is None:
+            model = value.strip()
+        elif key == "flags" and not flags:
+            flags = set(value.split())
+    return {"model": model, "simd": [f for f in SIMD_FLAGS if f in flags]}
+
+
 def environment() -> dict:
     """What made a result besides its input and settings: the Python, the platform, and the versions of the
     libraries whose numbers it carries (OpenCV's flow and filters, torch's solvers, numba's kernels, PyAV's decoding,
@@ -80,5 +106,6 @@ def environment() -> dict:
         except metadata.PackageNotFoundError:
             versions[name] = None
     return {"trackingworld": __version__, "python": platform.python_version(), "platform": platform.platform(),
-            "cpus": os.cpu_count(), "cv2": cv2.__version__, "cv2_threads": cv2.getNumThreads(),
+            "cpus": os.cpu_count(), "cpu": cpu_info(), "cv2": cv2.__version__, "cv2_threads": cv2.getNumThreads(),
+            "ipp": cv2.ipp.getIppVersion(),
             "ipp_in_tracking": bool(cv2.ipp.useIPP()), "ipp_off_in_lifting": wanted(), "packages": versions}
