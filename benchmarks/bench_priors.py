@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from _common import fmt, md_table_start, run_and_evaluate, scratch_dir, tracks_file, write_results  # noqa: I001 (a sibling script module)
-from trackingworld.config import InputConfig, OptimConfig, RunConfig, Track2DConfig
+from trackingworld.config import SFM_CONTACTS, InputConfig, OptimConfig, RunConfig, Track2DConfig
 from trackingworld.io.frames import read_frames
 from trackingworld.io.priors import load_masks
 from trackingworld.synth import render_and_write
@@ -52,13 +52,12 @@ def main(argv=None) -> int:
     ap.add_argument("--grounded", action="store_true",
                     help="the movers stand on the floor (SceneConfig.grounded_movers), as the SfM depth's contact "
                          "rule assumes; the presets' movers float")
-    ap.add_argument("--sfm-contact", default="column", choices=["column", "region"],
+    ap.add_argument("--sfm-contact", default=SFM_CONTACTS[0], choices=SFM_CONTACTS,
                     help="the SfM depth's rule for the dynamic regions (InputConfig.sfm_contact)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder of scenes, tracks and runs")
     a = ap.parse_args(argv)
     work = scratch_dir("bench_priors_", a.keep)
-    extra = {"grounded_movers": True} if a.grounded else {}
-    scene = render_and_write(work / "scene", a.preset, a.seed, **extra)
+    scene = render_and_write(work / "scene", a.preset, a.seed, grounded_movers=a.grounded)
     inp = scene / "input"
     frames, _ = read_frames(str(inp / "frames"))
     t0 = time.perf_counter()
@@ -85,7 +84,7 @@ def main(argv=None) -> int:
 
 
 def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed: int = 0,
-          grounded: bool = False, contact: str = "column") -> None:
+          grounded: bool = False, contact: str = SFM_CONTACTS[0]) -> None:
     head = ("| priors | ATE [% path] | track depth AbsRel | video depth AbsRel | world 3D acc all / dyn | "
             "static kept [%] | bg-mover recall [%] | priors [s] | run [s] |")
     lines = md_table_start(
@@ -93,7 +92,7 @@ def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed:
         f"({shape[0]} frames, {shape[2]}x{shape[1]})",
         f"Command: `.venv/bin/python benchmarks/bench_priors.py --preset {preset}"
         f"{f' --seed {seed}' if seed else ''}{' --grounded' if grounded else ''}"
-        f"{f' --sfm-contact {contact}' if contact != 'column' else ''}` (dense 2D tracks computed "
+        f"{f' --sfm-contact {contact}' if contact != SFM_CONTACTS[0] else ''}` (dense 2D tracks computed "
         f"once, {track_s:.1f} s, shared by every row; run time excludes them)", head)
     for name, r in results.items():
         m = r["metrics"]
@@ -115,7 +114,7 @@ def write(results: dict, coarse: dict, preset: str, shape, track_s: float, seed:
         lines.append(f"| motion masks (weight-free) | {mq['iou']:.3f} | {mq['recall']:.3f} | {mq['precision']:.3f} | "
                      f"{mq['bg_mover_recall']:.3f} |")
     name = (f"priors_{preset}" + (f"_seed{seed}" if seed else "") + ("_grounded" if grounded else "")
-            + (f"_{contact}" if contact != "column" else ""))
+            + (f"_{contact}" if contact != SFM_CONTACTS[0] else ""))
     write_results(name, lines, results)
 
 

@@ -10,6 +10,7 @@ STATIC_REBUILDS = ("fit", "idw")  # OptimConfig.static_rebuild
 TS_ORDERS = (1, 2)  # OptimConfig.ts_order (optim.stage3.TS_COEFS)
 REFINE_FOCAL = ("auto", "on", "off")  # OptimConfig.refine_focal
 CARRY_STATS = ("median", "mean")  # OptimConfig.carry_stat (optim.hidden)
+SFM_CONTACTS = ("column", "region")  # InputConfig.sfm_contact (priors.sfm.CONTACT_RULES)
 STAGE3_LINEAR = ("cg", "amg")  # OptimConfig.stage3_linear (optim.stage3.solve_cg / solve_amg)
 FIELD_ORDERS = (1, 2)  # OptimConfig.dc_target_order (optim.ratio_field: first differences / thin plate)
 # the OptimConfig fields that take one of a few values, and those values (checked before a run)

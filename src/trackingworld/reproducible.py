@@ -74,7 +74,8 @@ def cpu_info(cpuinfo: str = "/proc/cpuinfo") -> dict:
     import platform
 
     try:
-        text = open(cpuinfo).read()
+        with open(cpuinfo) as f:
+            text = f.read()
     except OSError:
         return {"model": platform.processor() or None, "simd": []}
     model, flags = None, set()

@@ -63,6 +63,8 @@ def _range_px(text: str) -> int | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from trackingworld.config import SFM_CONTACTS
+
     p = argparse.ArgumentParser(prog="trackingworld", description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="cmd")
@@ -100,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "else --fov)")
     g.add_argument("--fov", type=float, default=60.0,
                    help="horizontal field of view (deg) assumed when nothing better is known (default 60)")
-    g.add_argument("--sfm-contact", choices=["column", "region"], default="column",
+    g.add_argument("--sfm-contact", choices=SFM_CONTACTS, default=SFM_CONTACTS[0],
                    help="how the SfM depth fills a dynamic region: column (default: each column takes the ground "
                    "just below it) | region (one value each, the median of its border below; before stop 78)")
     g.add_argument("--no-self-calibration", action="store_true",
@@ -534,8 +536,7 @@ def cmd_synth(a) -> int:
     from trackingworld.synth import render_and_write
 
     try:
-        extra = {"grounded_movers": True} if a.grounded else {}
-        out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov, **extra)
+        out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov, grounded_movers=a.grounded)
     except ValueError as e:
         raise InputError(f"synth --preset {a.preset} --seed {a.seed}: {e}") from e
     print(f"scene written to {out} (inputs in {out / 'input'}, ground truth in {out / 'gt.npz'})")

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 import torch
 
-from trackingworld.config import OptimConfig
+from trackingworld.config import SFM_CONTACTS, OptimConfig
 from trackingworld.geometry import focal_length, invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import cell_representatives
@@ -332,7 +332,7 @@ def fill_dynamic(depth: np.ndarray, mask: np.ndarray, ring_px: int = 6, min_colu
     return out
 
 
-CONTACT_RULES = {"column": fill_dynamic, "region": fill_region}
+CONTACT_RULES = dict(zip(SFM_CONTACTS, (fill_dynamic, fill_region), strict=True))
 
 
 def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndarray,
@@ -340,8 +340,8 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
     """Depth maps ``[T,H,W]`` (median 1, arbitrary scale) from the dense tracks ``tr`` of a video whose dynamic
     masks are ``masks [T,H,W]``; ``static [N]`` marks the tracks off the masks."""
     cfg = cfg or SfMConfig()
-    if cfg.contact not in CONTACT_RULES:
-        raise ValueError(f"SfMConfig.contact {cfg.contact!r}: choose from {', '.join(CONTACT_RULES)}")
+    if cfg.contact not in SFM_CONTACTS:
+        raise ValueError(f"SfMConfig.contact {cfg.contact!r}: choose from {', '.join(SFM_CONTACTS)}")
     fill = CONTACT_RULES[cfg.contact]
     T, H, W = masks.shape
     rec, info = reconstruct(tr, static, K, cfg)
