@@ -35,14 +35,14 @@ def label_tracks(tracks: np.ndarray, visible: np.ndarray, query_frame: np.ndarra
     N, T = visible.shape
     H, W = masks.shape[1:]
     sta, dyn = mask_regions(masks, margin_px)
-    # frame by frame on contiguous copies: the sure-static / sure-dynamic lookups of the visible observations
-    per_frame = np.ascontiguousarray(tracks.transpose(1, 0, 2))  # [T,N,2]
+    # frame by frame: the sure-static / sure-dynamic lookups of the visible observations, each frame's gathered
+    # from the tracks (a long video's hidden entries of [N,T] outnumber its visible ones: no copy of them all)
     vis_t = np.ascontiguousarray(visible.T)
     n_sta = np.zeros(N, np.int64)
     n_dyn = np.zeros(N, np.int64)
     for t in range(T):
         v = np.flatnonzero(vis_t[t])
-        x, y = nearest_pixel(per_frame[t, v], W, H)
+        x, y = nearest_pixel(tracks[v, t], W, H)
         flat = y * W + x
         n_sta[v] += sta[t].ravel()[flat]
         n_dyn[v] += dyn[t].ravel()[flat]
