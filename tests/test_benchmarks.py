@@ -1,6 +1,6 @@
 """The benchmark scripts refuse a preset the synthetic generator does not know on one line, before any work (they
 run on demand, never in the tests; only their command lines are checked here), and the scene cache's code digest
-follows the shared modules the tracker imports."""
+follows the shared modules the tracker imports; the depth-error probe splits an error along and across the ray."""
 
 import importlib
 import sys
@@ -57,3 +57,15 @@ def test_the_cache_digest_follows_the_shared_modules_a_package_imports(tmp_path)
     assert source_digest(tmp_path / "tracker") == before
     (tmp_path / "image.py").write_text("def sample(): return 2\n")  # imported: the cached tracks are stale
     assert source_digest(tmp_path / "tracker") != before
+
+
+def test_the_depth_error_probe_splits_an_error_along_and_across_the_ray():
+    import numpy as np
+
+    ray_split = importlib.import_module("probe_depth_error").ray_split
+    centres = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]])
+    true = np.array([[0.0, 0.0, 5.0], [1.0, 2.0, 13.0]])  # 5 and 10 m straight ahead along z
+    along, across, depth = ray_split(true + [[0.0, 0.0, 0.2], [0.0, 0.3, -0.4]], true, centres)
+    assert np.allclose(depth, [5.0, 10.0])
+    assert np.allclose(along, [0.2, -0.4])  # beyond the point positive, nearer negative
+    assert np.allclose(across, [0.0, 0.3])
