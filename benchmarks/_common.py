@@ -15,6 +15,9 @@ import numpy as np
 
 from trackingworld.config import RunConfig, Track2DConfig
 from trackingworld.eval.evaluate import evaluate_to_file, load_gt
+from trackingworld.eval.match import match_queries
+from trackingworld.eval.tracks import eval_points
+from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
 from trackingworld.geometry import nearest_pixel
 from trackingworld.io.atomic import write_npz
 from trackingworld.io.frames import read_frames
@@ -102,6 +105,19 @@ def probe_inputs(doc: str, argv=None) -> tuple[Path, Path, Result, dict]:
     a = ap.parse_args(argv)
     res = load_result(a.run)
     return a.run, a.scene, res, load_gt(a.scene, res.depth.shape[0])
+
+
+def scored_queries(res: Result, gt: dict, xyz: np.ndarray | None = None):
+    """The ground-truth queries read from a result as the world 3D accuracy reads them (``eval.evaluate``): (the
+    matched queries (``eval.match``), their world positions ``[Nq,T,3]`` after the Sim(3) of the camera poses, their
+    errors ``[Nq,T]`` metres, the observations the metric scores ``[Nq,T]`` bool: seen in the truth, not at the query
+    frame). ``xyz [N,T,3]`` stands in for the result's world positions (None: its own)."""
+    qf = gt["query_frame"]
+    m = match_queries(res.tracks_2d, res.visible, res.tracks_3d if xyz is None else xyz, res.is_dynamic, qf,
+                      gt["query_uv"])
+    aligned = apply_sim3(sim3_from_poses(res.poses_c2w, gt["poses_c2w"]), m.xyz)
+    scored = eval_points(qf, gt["tracks_vis"].shape[1]) & gt["tracks_vis"]
+    return m, aligned, np.linalg.norm(aligned - gt["tracks_xyz"], axis=-1), scored
 
 
 def query_pixels(res: Result):

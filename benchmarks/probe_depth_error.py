@@ -24,13 +24,12 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, scored_queries, write_results  # noqa: I001 (a sibling script module)
 from probe_hidden import accuracy
-from trackingworld.eval.match import match_queries
-from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
 from trackingworld.geometry import invert_pose, nearest_pixel, transform
 
-DEPTH_BANDS_M = ((0.0, 3.0), (3.0, 5.0), (5.0, 8.0), (8.0, np.inf))
+# (label, from, to) metres of the static queries' rows
+DEPTH_BANDS_M = (("all", 0.0, np.inf), ("0-3", 0.0, 3.0), ("3-5", 3.0, 5.0), ("5-8", 5.0, 8.0), ("8-", 8.0, np.inf))
 FRAME_STEP = 4  # frames between the rows of the per-frame ratios
 
 
@@ -50,12 +49,8 @@ def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
     qf, n = gt["query_frame"], len(gt["query_frame"])
     dyn = gt["tracks_dynamic"].astype(bool)
-    m = match_queries(res.tracks_2d, res.visible, res.tracks_3d, res.is_dynamic, qf, gt["query_uv"])
-    pred = apply_sim3(sim3_from_poses(res.poses_c2w, gt["poses_c2w"]), m.xyz)  # [n,T,3] in the truth's frame
+    _, pred, err, ev = scored_queries(res, gt)  # pred [n,T,3] in the truth's world frame
     true, poses = gt["tracks_xyz"], gt["poses_c2w"]
-    ev = gt["tracks_vis"].copy()
-    ev[np.arange(n), qf] = False  # as the metric: the query frame itself is not scored
-    err = np.linalg.norm(pred - true, axis=-1)
     lines = [f"# World error along and across the ray: `{scene.name}`", "",
              f"Command: `.venv/bin/python benchmarks/probe_depth_error.py {run} {scene}`", "",
              f"World 3D accuracy: static {accuracy(err[ev & ~dyn[:, None]]):.2f}, dynamic "
@@ -66,7 +61,7 @@ def main(argv=None) -> int:
     st = np.flatnonzero(~dyn)
     along, across, depth = ray_split(pred[st, qf[st]], true[st, qf[st]], poses[qf[st], :3, 3])
     data = {"static": [], "objects": []}
-    for lo, hi in ((0.0, np.inf), *DEPTH_BANDS_M):
+    for band, lo, hi in DEPTH_BANDS_M:
         b = (depth >= lo) & (depth < hi) & np.isfinite(along)
         if not b.any():
             continue
@@ -74,18 +69,17 @@ def main(argv=None) -> int:
                100 * float(np.mean(along[b] / depth[b])), 100 * float(np.median(across[b])),
                100 * float(np.median(np.abs(along[b])))]
         data["static"].append([lo, hi, *row])
-        band = "all" if np.isinf(hi) and lo == 0 else (f"{lo:g}-{hi:g}" if np.isfinite(hi) else f"{lo:g}-")
         lines.append(f"| {band} | {row[0]} | {row[1]:.2f} | {row[2]:+.2f} | {row[3]:.1f} | {row[4]:.1f} |")
 
     T, H, W = gt["depth"].shape
-    prior = np.load(scene / "input" / "depth.npy", mmap_mode="r")
+    prior = np.load(scene / "input" / "depth.npy")
     qx, qy = nearest_pixel(gt["query_uv"], W, H)
     obj = gt["instance"][qf, qy, qx]
     w2c = invert_pose(poses)
     z_pred = transform(w2c[None], pred)[..., 2]  # [n,T] camera depths in the truth's cameras
     z_true = transform(w2c[None], true)[..., 2]
     ux, uy = nearest_pixel(gt["tracks_uv"].reshape(-1, 2), W, H)
-    z_prior = np.asarray(prior)[np.repeat(np.arange(T)[None], n, 0).reshape(-1), uy, ux].reshape(n, T)
+    z_prior = prior[np.repeat(np.arange(T)[None], n, 0).reshape(-1), uy, ux].reshape(n, T)
     lines += ["", "Dynamic queries by object (the instance under the query pixel): result / true and prior / true "
               "camera depth, the median over the object's scored queries in every "
               f"{FRAME_STEP}th frame:", "",

@@ -18,11 +18,9 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_pixels, scored_queries, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import OptimConfig
-from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import THRESHOLDS_M
-from trackingworld.eval.trajectory import apply_sim3, sim3_from_poses
 from trackingworld.geometry import focal_length, invert_pose, transform
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.tracking2d.base import nearest_visible_frame
@@ -57,19 +55,10 @@ def accuracy(err: np.ndarray) -> float:
 def main(argv=None) -> int:
     run, scene, res, gt = probe_inputs(__doc__, argv)
     cfg = OptimConfig()
-    qf, gd = gt["query_frame"], gt["tracks_dynamic"]
+    gd = gt["tracks_dynamic"]
     x, y = query_pixels(res)
     inst = gt["instance"][res.query_frame, y, x]  # each result track's object at its query pixel (oracle)
     dyn = np.flatnonzero(res.is_dynamic)
-    align = sim3_from_poses(res.poses_c2w, gt["poses_c2w"])
-    ev = gt["tracks_vis"].copy()
-    ev[np.arange(len(qf)), qf] = False  # the query frame itself is not scored
-
-    def score(xyz):
-        """(matched queries, their errors [Nq,T] metres after the poses' Sim(3))."""
-        m = match_queries(res.tracks_2d, res.visible, xyz, res.is_dynamic, qf, gt["query_uv"])
-        return m, np.linalg.norm(apply_sim3(align, m.xyz) - gt["tracks_xyz"], axis=-1)
-
     # the carry as the pipeline runs it (motion scale from the result's own depths), and with object donors
     vis = res.visible
     few = dyn[:: max(1, len(dyn) // 4000)]
@@ -92,13 +81,13 @@ def main(argv=None) -> int:
              f"Command: `.venv/bin/python benchmarks/probe_hidden.py {run} {scene}`", "",
              "| carry | dynamic world acc | seen: acc (observations) | hidden: acc (observations) |",
              "|---|---|---|---|"]
-    scored = [score(xyz) for _, xyz in rows]
-    for (name, _), (m, err) in zip(rows, scored, strict=True):
+    scored = [scored_queries(res, gt, xyz) for _, xyz in rows]
+    ev = scored[0][3]  # the observations the metric scores, the same for every row
+    for (name, _), (m, _, err, _) in zip(rows, scored, strict=True):
         seen, hid = ev & m.visible & gd[:, None], ev & ~m.visible & gd[:, None]
         lines.append(f"| {name} | {accuracy(err[ev & gd[:, None]]):.1f} | {accuracy(err[seen]):.1f} "
                      f"({seen.sum():,}) | {accuracy(err[hid]):.1f} ({hid.sum():,}) |")
-    m, err = scored[0]  # the result as written
-    al = apply_sim3(align, m.xyz)
+    m, al, err, _ = scored[0]  # the result as written
     n, t = np.nonzero(ev & ~m.visible & gd[:, None])
     s = nearest_visible_frame(m.visible)[n, t]  # the anchor: nearest frame the result sees the query in
     gap = np.abs(t - s)

@@ -9,14 +9,15 @@ THRESHOLDS_PX = (1, 2, 4, 8, 16)
 THRESHOLDS_M = (0.05, 0.10, 0.20, 0.40, 0.80)
 
 
-def _eval_points(query_frame: np.ndarray, T: int) -> np.ndarray:
+def eval_points(query_frame: np.ndarray, T: int) -> np.ndarray:
+    """``[N,T]`` bool: the frames a track is scored in, every frame but its query frame ``query_frame [N]``."""
     return np.arange(T)[None, :] != query_frame[:, None]
 
 
 def tapvid_2d(pred_uv, pred_vis, gt_uv, gt_vis, query_frame, size_wh, eval_size=(256, 256)) -> dict:
     """delta_avg (%) of gt-visible points and occlusion accuracy (%), coordinates scaled to 256x256."""
     N, T = gt_vis.shape
-    ev = _eval_points(query_frame, T)
+    ev = eval_points(query_frame, T)
     sc = np.array([eval_size[0] / size_wh[0], eval_size[1] / size_wh[1]])
     err = np.linalg.norm((pred_uv - gt_uv) * sc, axis=-1)
     m = gt_vis & ev
@@ -33,7 +34,7 @@ def tapvid_3d(pred_xyz_cam, pred_vis, gt_xyz_cam, gt_vis, query_frame, K, size_w
     so that the image's short side is 256 px.
     """
     N, T = gt_vis.shape
-    ev = _eval_points(query_frame, T)
+    ev = eval_points(query_frame, T)
     both = gt_vis & pred_vis
     gn = np.linalg.norm(gt_xyz_cam, axis=-1)
     pn = np.linalg.norm(pred_xyz_cam, axis=-1)
@@ -58,7 +59,7 @@ def tapvid_3d(pred_xyz_cam, pred_vis, gt_xyz_cam, gt_vis, query_frame, K, size_w
 
 def world_accuracy(pred_xyz_world_aligned, gt_xyz, gt_vis, query_frame) -> dict:
     """Fraction (%) of gt-visible points within 5/10/20/40/80 cm in the world frame, and their mean."""
-    ev = _eval_points(query_frame, gt_vis.shape[1]) & gt_vis
+    ev = eval_points(query_frame, gt_vis.shape[1]) & gt_vis
     err = np.linalg.norm(pred_xyz_world_aligned - gt_xyz, axis=-1)[ev]
     if err.size == 0:
         return {"n_points": 0}
