@@ -90,6 +90,6 @@ def test_rigid_movers_on_cuda_find_the_cpu_groups_and_positions():
     start = _lift(uv, target, poses, K)
     res = {dev: rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings(), device=dev)
            for dev in ("cpu", "cuda")}
-    assert res["cpu"][2]["rigid_groups"] >= 1 and res["cuda"][2] == res["cpu"][2]
+    assert res["cpu"][3]["rigid_groups"] >= 1 and res["cuda"][3] == res["cpu"][3]
     np.testing.assert_array_equal(res["cuda"][1], res["cpu"][1])
     np.testing.assert_allclose(res["cuda"][0], res["cpu"][0], atol=1e-4)

@@ -150,3 +150,34 @@ def test_cli_export_and_errors(exact, tmp_path, capsys):
     assert main(["export", str(tmp_path / "missing"), "--format", "ply"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing" in err[0] and "no such result" in err[0]
+
+
+def test_objects_read_back_with_evo_in_the_frames_each_is_solved_in(tmp_path):
+    from evo.tools import file_interface
+    from scipy.spatial.transform import Rotation
+
+    from trackingworld.errors import InputError
+    from trackingworld.io.result import Result, save_result
+
+    d = tmp_path / "r"
+    res, _ = write_exact_result(d)
+    with pytest.raises(InputError, match="no object_id"):
+        export(d, "objects", verbose=False)
+    T = res.num_frames
+    poses = np.full((2, T, 4, 4), np.nan, np.float32)
+    for g, frames in enumerate((np.arange(T), np.arange(2, T - 1))):
+        rot = Rotation.from_rotvec(np.outer(frames, [0.0, 0.05 * (g + 1), 0.01])).as_matrix()
+        poses[g, frames] = np.eye(4)
+        poses[g, frames, :3, :3] = rot
+        poses[g, frames, :3, 3] = np.outer(frames, [0.1, 0.0, -0.05 * g]) + g
+    ids = np.full(res.num_tracks, -1, np.int32)
+    ids[:5], ids[5:8] = 0, 1
+    save_result(d, Result(**{**res.as_dict(), "object_id": ids, "object_poses": poses}))
+    out = export(d, "objects", verbose=False)
+    listing = json.loads((out / "objects.json").read_text())["objects"]
+    assert [o["tracks"] for o in listing] == [5, 3] and listing[1]["frames"] == [2, T - 2]
+    for g, o in enumerate(listing):
+        traj = file_interface.read_tum_trajectory_file(str(out / o["file"]))
+        solved = np.flatnonzero(np.isfinite(poses[g, :, 0, 0]))
+        np.testing.assert_array_equal(traj.timestamps, solved)
+        np.testing.assert_allclose(np.stack(traj.poses_se3), poses[g, solved], atol=1e-6)

@@ -46,7 +46,7 @@ def test_a_rigid_mover_takes_the_scale_of_all_frames():
     warp = 1 + 0.1 * np.sin(np.arange(T) / T * 2 * np.pi)[None]
     target = z * warp * (1 + 0.02 * np.random.default_rng(1).standard_normal(z.shape))
     start = _lift(uv, target, poses, K)
-    out, groups, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings())
+    out, groups, _, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), RigidSettings())
     assert info["rigid_groups"] >= 1 and (groups >= 0).mean() > 0.75
     zo = camera_depths(out, poses)
     before = np.median(np.abs(np.log(target / z)), axis=0)  # per frame
@@ -55,10 +55,29 @@ def test_a_rigid_mover_takes_the_scale_of_all_frames():
     assert np.median(np.linalg.norm(out - X, axis=-1)) < 0.5 * np.median(np.linalg.norm(start - X, axis=-1))
 
 
+def test_each_object_pose_carries_its_tracks_as_one_rigid_point_set():
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    start = _lift(uv, z * 1.05, poses, K)
+    out, groups, motions, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), RigidSettings())
+    assert motions.shape == (info["rigid_groups"], T, 4, 4) and motions.shape[0] >= 1
+    assert set(np.unique(groups)) <= {-1, *range(len(motions))}
+    for g, O in enumerate(motions):
+        solved = np.isfinite(O[:, 0, 0])
+        assert solved.sum() >= 3 and np.isnan(O[~solved]).all()
+        # in the object's frame every track of the object holds still: one point per track
+        local = transform(invert_pose(O[solved])[None], out[groups == g][:, solved])
+        assert np.abs(local - local[:, :1]).max() < 1e-6
+        # and it moves as the truth does, at the scale of the depth targets (5% too far): the distances between its
+        # tracks are the true ones times 1.05 in every frame
+        i, j = np.flatnonzero(groups == g)[[0, -1]]
+        ratio = np.linalg.norm(out[i] - out[j], axis=-1) / np.linalg.norm(X[i] - X[j], axis=-1)
+        np.testing.assert_allclose(ratio[solved], 1.05, rtol=0.01)
+
+
 def test_tracks_that_move_apart_keep_their_positions():
     uv, vis, X, z, poses, K, qf = _scene(rigid=False)
     start = _lift(uv, z * 1.05, poses, K)
-    out, groups, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), RigidSettings())
+    out, groups, _, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), RigidSettings())
     assert info["rigid_groups"] == 0 and (groups < 0).all()
     np.testing.assert_array_equal(out, start)
 
@@ -95,6 +114,17 @@ def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny
     assert np.isfinite(b.tracks_3d).all() and not np.allclose(a.tracks_3d[both], b.tracks_3d[both])
     info = json.loads((outs["on"] / "optim.json").read_text())
     assert info["rigid_groups"] >= 1 and info["rigid_tracks"] >= 50
+    # the objects in result.npz: none without the step; with it, dynamic tracks only, every object holding some,
+    # and its tracks still in its frame over the frames its motion is solved in
+    assert a.object_poses.shape == (0, a.num_frames, 4, 4) and (a.object_id == -1).all()
+    G = len(b.object_poses)
+    assert 1 <= G <= info["rigid_groups"] and (b.object_id[~b.is_dynamic] == -1).all()
+    assert set(np.unique(b.object_id)) == {-1, *range(G)}
+    for g, O in enumerate(b.object_poses.astype(np.float64)):
+        solved = np.isfinite(O[:, 0, 0])
+        local = transform(invert_pose(O[solved])[None], b.tracks_3d[b.object_id == g][:, solved].astype(np.float64))
+        still = np.abs(local - local[:, :1]).max(axis=(1, 2)) < 1e-3
+        assert still.mean() > 0.9
 
 
 def test_the_median_scale_keeps_the_2d_tracks_and_meets_the_targets():
@@ -183,7 +213,7 @@ def test_the_second_pass_reaches_a_mover_whose_tracks_are_shorter_than_the_faile
     rigid = np.r_[np.zeros(len(uv0), bool), np.ones(len(uv1), bool)]
     for more, found in ((0, False), (30, True)):  # the wandering tracks take the first pass's 8 seeds
         s = RigidSettings(max_failed=8, ring_seeds=more)
-        _, groups, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), s)
+        _, groups, _, info = rigid_movers(uv, vis, z * 1.05, start, poses, K, qf, OptimConfig(), s)
         assert ((groups[rigid] >= 0).mean() > 0.75) == found, (more, info)
         assert (groups[~rigid] < 0).mean() > 0.9
 
@@ -215,7 +245,7 @@ def test_the_motion_that_places_a_group_is_fitted_to_that_group(monkeypatch):
     for final in (0, 3):
         events.clear()
         s = RigidSettings(final_rounds=final, rounds=1, round_iters=1, seed_tracks=60, min_tracks=50)
-        out, groups, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), s,
+        out, groups, _, info = rigid_movers(uv, vis, target, start, poses, K, qf, OptimConfig(), s,
                                          log=lambda m: events.append(("group", int(m.split()[2]))))
         assert info["rigid_groups"] >= 2 and np.isfinite(out).all()
         fitted = [next(n for kind, n in events[:i][::-1] if kind == "fit")
@@ -237,8 +267,8 @@ def test_the_rigid_step_reads_the_visible_frames_only_and_writes_into_the_carrie
     carried = _lift(uv, target, poses, K)  # the hidden frames as a carrying would leave them
     before = carried.copy()
     before[~vis] = 7.0  # ... and as they are before it
-    ref, groups, info = rigid_movers(uv, vis, target, carried, poses, K, qf, OptimConfig(), RigidSettings())
-    out, groups2, info2 = rigid_movers(uv, vis, target, before, poses, K, qf, OptimConfig(), RigidSettings(),
+    ref, groups, _, info = rigid_movers(uv, vis, target, carried, poses, K, qf, OptimConfig(), RigidSettings())
+    out, groups2, _, info2 = rigid_movers(uv, vis, target, before, poses, K, qf, OptimConfig(), RigidSettings(),
                                        into=carried.copy)
     assert info["rigid_groups"] >= 1 and info == info2
     np.testing.assert_array_equal(groups, groups2)
@@ -314,7 +344,7 @@ def test_a_group_of_two_objects_one_motion_explains_is_cut_to_its_largest_piece(
     errs = {}
     for gap in (0.0, 0.1):
         s = RigidSettings(min_tracks=100, split_gap=gap, ring_seeds=0, bridge=None)
-        out, groups, info = rigid_movers(uv, vis, z, X.copy(), poses, K, qf, OptimConfig(), s)
+        out, groups, _, info = rigid_movers(uv, vis, z, X.copy(), poses, K, qf, OptimConfig(), s)
         b = np.bincount(groups[~first][groups[~first] >= 0]).argmax()  # the second box's group
         assert ((groups[first] == b).mean() > 0.5) == (gap == 0), (gap, info)
         errs[gap] = np.median(np.linalg.norm(out[first][:, 10:] - X[first][:, 10:], axis=-1))

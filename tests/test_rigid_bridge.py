@@ -46,7 +46,7 @@ def test_the_groups_of_one_object_across_a_gap_are_joined_and_placed_on_both_sid
     vis, qf, a = _split(uv, vis)
     start = np.where(vis[..., None], _lift(uv, z, poses, K), 0.0)  # hidden frames: nothing known (at the origin)
     s = RigidSettings(min_tracks=150, ring_seeds=30)
-    out, groups, info = rigid_movers(uv, vis, z, start, poses, K, qf, OptimConfig(), s, size=(W, H))
+    out, groups, _, info = rigid_movers(uv, vis, z, start, poses, K, qf, OptimConfig(), s, size=(W, H))
     assert info["rigid_groups"] == 2 and info["rigid_joined"] == 1
     assert len(np.unique(groups[groups >= 0])) == 1
     grouped = groups >= 0
@@ -56,7 +56,7 @@ def test_the_groups_of_one_object_across_a_gap_are_joined_and_placed_on_both_sid
         err = np.linalg.norm(out[sel][:, frames] - X[sel][:, frames], axis=-1)
         assert sel.sum() > 100 and np.median(err) < 0.02, (frames, np.median(err))
     # not joined: the first group's tracks keep what they were given after the gap
-    out0, _, info0 = rigid_movers(uv, vis, z, start, poses, K, qf, OptimConfig(),
+    out0, _, _, info0 = rigid_movers(uv, vis, z, start, poses, K, qf, OptimConfig(),
                                   RigidSettings(min_tracks=150, ring_seeds=30, bridge=None), size=(W, H))
     assert info0["rigid_groups"] == 2 and "rigid_joined" not in info0
     np.testing.assert_array_equal(out0[a][:, FIRST_B:], 0.0)

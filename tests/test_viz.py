@@ -158,3 +158,38 @@ def test_tracks_video_coloured_by_label_step():
     img = next(tracks_video_frames(res, frames, RenderConfig(color_by="step", max_tracks=50)))
     olive = np.array(D.STEP_COLORS["vote"][0])
     assert (np.abs(img.reshape(-1, 3).astype(int) - olive).max(1) <= 2).sum() > 20  # the tracks' dots
+
+
+def test_points_and_the_tracks_video_coloured_by_their_rigid_object():
+    from trackingworld.errors import InputError
+    from trackingworld.viz.render import RenderConfig, tracks_video_frames
+
+    res, frames = exact_result()
+    idx = np.flatnonzero(res.visible[:, 2])
+    _, _, plain = D.frame_points(res, 2, idx, len(idx), "object")  # no object_id: the label colours
+    np.testing.assert_array_equal(plain, D.label_colors(res.is_dynamic[idx]))
+    with pytest.raises(InputError, match="no object_id"):
+        next(tracks_video_frames(res, frames, RenderConfig(color_by="object")))
+    ids = np.full(res.num_tracks, -1, np.int32)
+    ids[idx[:4]] = 0
+    ids[idx[4:6]] = len(D.OBJECT_COLORS) + 1  # the colours cycle
+    poses = np.tile(np.eye(4, dtype=np.float32), (len(D.OBJECT_COLORS) + 2, res.num_frames, 1, 1))
+    obj = Result(**{**res.as_dict(), "object_id": ids, "object_poses": poses})
+    _, _, col = D.frame_points(obj, 2, idx, len(idx), "object")
+    np.testing.assert_array_equal(col[:4], np.tile(D.OBJECT_COLORS[0], (4, 1)))
+    np.testing.assert_array_equal(col[4:6], np.tile(D.OBJECT_COLORS[1], (2, 1)))
+    np.testing.assert_array_equal(col[6:], D.label_colors(res.is_dynamic[idx[6:]]))
+    # no object colour is a label colour, so a track in an object never reads as merely static or dynamic
+    assert not any((c == D.STATIC_COLOR).all() or (c == D.DYNAMIC_COLOR).all() for c in D.OBJECT_COLORS)
+    every = Result(**{**res.as_dict(), "object_id": np.zeros(res.num_tracks, np.int32), "object_poses": poses[:1]})
+    img = next(tracks_video_frames(every, frames, RenderConfig(color_by="object", max_tracks=50)))
+    assert (np.abs(img.reshape(-1, 3).astype(int) - D.OBJECT_COLORS[0].astype(int)).max(1) <= 2).sum() > 20
+
+
+def test_a_result_refuses_object_ids_past_its_objects():
+    res, _ = exact_result()
+    poses = np.tile(np.eye(4, dtype=np.float32), (2, res.num_frames, 1, 1))
+    with pytest.raises(ValueError, match="object_id out of range"):
+        Result(**{**res.as_dict(), "object_id": np.full(res.num_tracks, 2, np.int32), "object_poses": poses})
+    with pytest.raises(ValueError, match="come together"):
+        Result(**{**res.as_dict(), "object_id": np.zeros(res.num_tracks, np.int32)})

@@ -143,15 +143,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="points per frame sent to the browser (default 150000; the density slider goes lower)")
     v.add_argument("--video", help="input video or image folder, when it has moved since the run")
 
-    from trackingworld.viz.render import VIEWS, RenderConfig
+    from trackingworld.viz.render import COLOR_BY, VIEWS, RenderConfig
 
     d = RenderConfig()
     n = sub.add_parser("render", help="write shareable videos and plots into DIR/render/")
     n.add_argument("dir", help="result folder (holding result.npz)")
     n.add_argument("--only", nargs="+", choices=["tracks", "scene", "path"], default=["tracks", "scene", "path"],
                    help="tracks: tracks_2d.mp4, scene: scene_3d.mp4, path: camera_path.png (default: all)")
-    n.add_argument("--color-by", default=d.color_by, choices=["depth", "label", "step"],
-                   help="colour of the 2D tracks (step: the step that set each label, the viewer's legend)")
+    n.add_argument("--color-by", default=d.color_by, choices=list(COLOR_BY),
+                   help="colour of the 2D tracks (step: the step that set each label, the viewer's legend; object: "
+                        "the rigid object that placed each track)")
     n.add_argument("--view", default=d.view, choices=VIEWS,
                    help="viewpoint of scene_3d.mp4: orbit (swings about the scene), follow (behind and above the "
                         "camera), input (the estimated camera itself) or fixed (--eye, --target)")

@@ -16,6 +16,12 @@ intrinsics     float32  [3,3]        pinhole K at the input resolution
 depth          float32  [T,H,W]      temporally consistent video depth, metres
 label_step     int8     [N]          optional: the step of the lifting that set is_dynamic (an index
                                      into ``optim.label_steps.LABEL_STEPS``; 0: the masks' label)
+object_id      int32    [N]          optional: the rigid object whose motion placed the track (an index
+                                     into object_poses; -1: none, every static track among them)
+object_poses   float32  [G,T,4,4]    optional: each rigid object's object-to-world pose per frame (world
+                                     metres; NaN in the frames its motion is not solved in). The object
+                                     frame is a camera frame of the object's reference frame, so a track
+                                     of object g sits at ``object_poses[g, t] @ p`` for one point ``p``
 =============  =======  ===========  ==================================================================
 """
 
@@ -48,6 +54,8 @@ class Result:
     intrinsics: np.ndarray
     depth: np.ndarray
     label_step: np.ndarray | None = None  # not written by the camera-centric baseline
+    object_id: np.ndarray | None = None  # not written by the baseline, nor before stop 82
+    object_poses: np.ndarray | None = None  # ... with object_id
 
     DTYPES = {
         "tracks_2d": np.float32,
@@ -60,6 +68,8 @@ class Result:
         "intrinsics": np.float32,
         "depth": np.float32,
         "label_step": np.int8,
+        "object_id": np.int32,
+        "object_poses": np.float32,
     }
 
     def __post_init__(self) -> None:
@@ -91,6 +101,7 @@ class Result:
             "intrinsics": (3, 3),
             "depth": (T, H, W),
             "label_step": (N,),
+            "object_id": (N,),
         }
         for k, shape in expect.items():
             if getattr(self, k) is None:
@@ -103,16 +114,29 @@ class Result:
                 raise ValueError(f"result field {k} holds non-finite values")
         if N and (self.query_frame.min() < 0 or self.query_frame.max() >= T):
             raise ValueError("result field query_frame out of range")
+        if (self.object_id is None) != (self.object_poses is None):
+            raise ValueError("result fields object_id and object_poses come together")
+        if self.object_poses is not None:
+            G = len(self.object_poses)
+            if self.object_poses.shape != (G, T, 4, 4):
+                raise ValueError(f"result field object_poses has shape {self.object_poses.shape}, expected "
+                                 f"({G}, {T}, 4, 4)")
+            if N and (self.object_id.min() < -1 or self.object_id.max() >= G):
+                raise ValueError(f"result field object_id out of range (-1 to {G - 1})")
+            if np.isinf(self.object_poses).any():
+                raise ValueError("result field object_poses holds infinite values")
 
     def as_dict(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
-def tum_lines(poses_c2w: np.ndarray) -> str:
-    """TUM trajectory text (``t tx ty tz qx qy qz qw``), timestamp = frame index."""
+def tum_lines(poses_c2w: np.ndarray, frames: np.ndarray | None = None) -> str:
+    """TUM trajectory text (``t tx ty tz qx qy qz qw``) of poses ``[n,4,4]``, timestamp = frame index (``frames
+    [n]``, None: 0 .. n-1)."""
     q = quat_wxyz(poses_c2w[:, :3, :3].astype(np.float64))
     rows = []
-    for i, (T, qq) in enumerate(zip(poses_c2w, q, strict=True)):
+    stamps = range(len(poses_c2w)) if frames is None else frames
+    for i, T, qq in zip(stamps, poses_c2w, q, strict=True):
         t = T[:3, 3]
         rows.append(f"{i:d} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f} {qq[0]:.9f}")
     return "\n".join(rows) + "\n"

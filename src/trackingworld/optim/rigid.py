@@ -262,13 +262,15 @@ def object_positions(P: np.ndarray, to_world: np.ndarray) -> np.ndarray:
 def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.ndarray, poses: np.ndarray,
                  K: np.ndarray, qf: np.ndarray, cfg, s: RigidSettings, log=None, dtype=torch.float64,
                  device="cpu", size: tuple[int, int] | None = None,
-                 into: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                 into: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """World positions ``[N,T,3]`` of dynamic tracks with every rigidly moving group placed by its rigid motion
     (stage 3's ``xyz [N,T,3]`` elsewhere; the module docstring says how groups are found). ``uv [N,T,2]``,
     ``vis [N,T]``, ``target [N,T]`` stage 3's depth targets (metres), ``qf [N]`` query frames, ``cfg`` the
     optimiser's config (the fit's weights and kernels), ``size`` the image's (W, H), which the joining of groups
     across a gap needs (``s.bridge``; :mod:`trackingworld.optim.rigid_bridge`). Returns the positions, each track's
-    group ``[N]`` (-1: none; the group found first, where groups were joined) and counts. ``into``: called once the
+    object ``[N]`` (-1: none; an index into the next), the objects' object-to-world poses ``[G,T,4,4]`` (groups joined
+    across a gap are one object; NaN in the frames its motion is not solved in; the object frame is the camera frame
+    at the frame its first group's fit was referred to) and counts. ``into``: called once the
     groups are found, the ``[N,T,3]`` array the groups' positions are written into and returned (None: a copy of
     ``xyz``); ``xyz`` is read only at the visible frames and the query frames."""
     N, T = vis.shape
@@ -387,7 +389,6 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                 members = piece[ok]
         return members, P, motion
 
-    groups = np.full(N, -1)
     objects: list[RigidObject] = []
     info = {"rigid_groups": 0, "rigid_tracks": 0, "rigid_seeds": 0}
     seeds = left.copy()
@@ -422,7 +423,6 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             O = motion_poses(motion, poses, T)
             objects.append(RigidObject(O, members, P, np.repeat(np.isfinite(O[None, :, 0, 0]), len(members), 0)))
             left[members] = False
-            groups[members] = info["rigid_groups"]
             info["rigid_groups"] += 1
             info["rigid_tracks"] += int(len(members))
             if log:
@@ -433,8 +433,11 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         objects = bridge(objects, uv, vis, xyz, poses, K, size, s.bridge, log)
         info["rigid_joined"] = n - len(objects)
     out = xyz.copy() if into is None else into()
-    for o in objects:
-        groups[o.members] = groups[o.members].min()
+    groups = np.full(N, -1)
+    motions = np.full((len(objects), T, 4, 4), np.nan)
+    for g, o in enumerate(objects):
+        groups[o.members] = g
+        motions[g] = o.motion
         pos = object_positions(o.points, o.motion)
         if s.median_scale:
             pos = _to_median_scale(pos, vis[o.members], target[o.members], poses)
@@ -444,7 +447,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         sub = out[o.members]
         sub[keep] = pos[keep]
         out[o.members] = sub
-    return out, groups, info
+    return out, groups, motions, info
 
 
 def pieces(P: np.ndarray, gap: float) -> np.ndarray:

@@ -89,17 +89,18 @@ RIGID_THREADS = 4
 
 
 def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, dtype, device, info: dict,
-                size: tuple[int, int] | None = None, carry=None, beside=None) -> None:
+                size: tuple[int, int] | None = None, carry=None, beside=None) -> tuple[np.ndarray, np.ndarray]:
     """``xyz[dyn]`` (in place) <- the dynamic tracks that a rigid motion explains placed by it
     (:func:`trackingworld.optim.rigid.rigid_movers`; ``target [len(dyn),T]`` stage 3's depth target; ``size`` the
-    image's (W, H), px). ``carry``: :func:`place_dynamic`'s deferred carrying of the hidden frames, run on a thread
-    beside the rigid step (which reads the visible frames only, :func:`can_defer_carry`), the groups' positions
-    then written into its result: the same numbers as the two one after the other, in the time of the longer.
-    ``beside``: more work for that thread once the carrying is done, which reads nothing the step writes, counts
-    the core it takes itself (``optim.parallel.core_taken``) and is left running when the step ends (the video
-    depth's search ahead, ``pipeline.video_depth.SearchAhead.job``). While the thread works, the step and the
-    carrying split their work among the cores left (``worker_threads()`` one less), and torch runs the step on one
-    thread fewer throughout."""
+    image's (W, H), px). Returns the object of each of ``dyn`` ``[len(dyn)]`` (-1: none) and the objects'
+    object-to-world poses ``[G,T,4,4]`` (NaN where not solved). ``carry``: :func:`place_dynamic`'s deferred carrying
+    of the hidden frames, run on a thread beside the rigid step (which reads the visible frames only,
+    :func:`can_defer_carry`), the groups' positions then written into its result: the same numbers as the two one
+    after the other, in the time of the longer. ``beside``: more work for that thread once the carrying is done,
+    which reads nothing the step writes, counts the core it takes itself (``optim.parallel.core_taken``) and is left
+    running when the step ends (the video depth's search ahead, ``pipeline.video_depth.SearchAhead.job``). While the
+    thread works, the step and the carrying split their work among the cores left (``worker_threads()`` one less),
+    and torch runs the step on one thread fewer throughout."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
     settings = RigidSettings(ring_seeds=cfg.rigid_second_pass, split_gap=cfg.rigid_split_gap)
     if not cfg.rigid_bridge:
@@ -110,7 +111,7 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
             into = None if carry is None else pool.submit(_on_one_core, carry).result
             if beside is not None:
                 pool.submit(beside)
-            xyz[dyn], _, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target,
+            xyz[dyn], groups, motions, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target,
                                             xyz[dyn].astype(np.float64), poses.astype(np.float64),
                                             K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings,
                                             note, dtype, device, size, into)
@@ -118,6 +119,7 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
         if pool is not None:
             pool.shutdown(wait=False)  # the carrying was waited for (into); ``beside`` may go on
     info.update(counts)
+    return groups, motions
 
 
 def _on_one_core(work):

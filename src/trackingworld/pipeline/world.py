@@ -269,12 +269,15 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         target, carry = place_dynamic(dyn, np.flatnonzero(~dynamic), tr.queries, uv, vis, D, prior, xyz, poses, K,
                                       cfg, dtype, device, log, info, thinned, defer_carry=rigid)
     ahead = None  # the video depth's searches, which read only the 2D tracks, on the second core beside the step
+    object_id = np.full(N, -1, np.int32)  # the rigid object that placed each track (result.npz's object_id)
+    object_poses = np.zeros((0, T, 4, 4))
     if rigid and target is not None:
         if worker_threads() > 1:
             ahead = SearchAhead(uv, vis, prior.shape[1:])
         with tm("rigid_movers"):
-            place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype, device, info,
-                        (prior.shape[2], prior.shape[1]), carry, None if ahead is None else ahead.job())
+            object_id[dyn], object_poses = place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype,
+                                                       device, info, (prior.shape[2], prior.shape[1]), carry,
+                                                       None if ahead is None else ahead.job())
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
@@ -300,8 +303,22 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg, dynamic, labels, info)
             steps.after("photo_moving", dynamic)
     info["label_steps"] = steps.counts(dynamic)
+    object_id, object_poses = kept_objects(object_id, object_poses, dynamic)
     return {"poses_c2w": poses, "xyz": xyz, "is_dynamic": dynamic, "labels": labels, "depth": depth, "K": K,
-            "visible": vis, "tracks_2d": uv, "label_step": steps.step, "info": info}
+            "visible": vis, "tracks_2d": uv, "label_step": steps.step, "object_id": object_id,
+            "object_poses": object_poses, "info": info}
+
+
+def kept_objects(object_id: np.ndarray, object_poses: np.ndarray, dynamic: np.ndarray) -> tuple[np.ndarray,
+                                                                                                 np.ndarray]:
+    """The rigid objects of the final labels: ``object_id [N]`` (-1: none) cleared on the tracks that a later step
+    labelled static (the photometric and occlusion rescues place them on static points), the objects left with no
+    track dropped and the rest numbered from 0 in their order; ``object_poses [G,T,4,4]`` cut to match."""
+    object_id = np.where(dynamic, object_id, -1).astype(np.int32)
+    keep = np.flatnonzero(np.bincount(object_id[object_id >= 0], minlength=len(object_poses)) > 0)
+    new = np.full(len(object_poses) + 1, -1, np.int32)  # new[-1] = -1 for the tracks in none
+    new[keep] = np.arange(len(keep))
+    return new[object_id], object_poses[keep]
 
 
 def check_optim(o: OptimConfig) -> None:
@@ -389,5 +406,6 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     return Result(
         tracks_2d=inp.to_input_pixels(out["tracks_2d"]), visible=out["visible"], tracks_3d=out["xyz"], query_frame=qt,
         is_dynamic=out["is_dynamic"], colors=colors, poses_c2w=out["poses_c2w"],
-        intrinsics=K_in, depth=depth, label_step=out["label_step"],
+        intrinsics=K_in, depth=depth, label_step=out["label_step"], object_id=out["object_id"],
+        object_poses=out["object_poses"].astype(np.float32),
     )

@@ -16,7 +16,11 @@ from trackingworld.optim.label_steps import LABEL_STEPS
 
 STATIC_COLOR = np.array([120, 150, 190], np.uint8)  # label colours: static blue-grey
 DYNAMIC_COLOR = np.array([255, 110, 20], np.uint8)  # dynamic orange
-COLOR_MODES = ("video", "video + dynamic tint", "label", "label step", "depth")
+COLOR_MODES = ("video", "video + dynamic tint", "label", "label step", "object", "depth")
+# "object": one colour per rigid object (result.npz's object_id), cycling through these; the tracks of no object keep
+# the label colours (matplotlib's tab10 without its blue, grey and orange, which the label colours use)
+OBJECT_COLORS = np.array([(44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75), (227, 119, 194),
+                          (188, 189, 34), (23, 190, 207)], np.uint8)
 # "label step": one colour per step of optim.label_steps.LABEL_STEPS that set the label (result.npz's label_step),
 # with its name for a legend; the masks' own label keeps the label colours' blue-grey / orange
 STEP_COLORS = {
@@ -119,21 +123,33 @@ def step_colors(label_step: np.ndarray, dyn: np.ndarray) -> np.ndarray:
     return out
 
 
+def object_colors(object_id: np.ndarray, dyn: np.ndarray) -> np.ndarray:
+    """Colours [M,3] uint8 of tracks by their rigid object (``object_id`` [M], -1: none): :data:`OBJECT_COLORS`
+    in turn, the label colours where a track is in no object (``dyn`` [M] bool their labels)."""
+    out = label_colors(dyn)
+    some = object_id >= 0
+    out[some] = OBJECT_COLORS[object_id[some] % len(OBJECT_COLORS)]
+    return out
+
+
 def point_colors(mode: str, idx: np.ndarray, t: int, *, tracks_2d: np.ndarray, is_dynamic: np.ndarray,
                  colors: np.ndarray, frame: np.ndarray | None = None, depth: np.ndarray | None = None,
-                 label_step: np.ndarray | None = None) -> np.ndarray:
+                 label_step: np.ndarray | None = None, object_id: np.ndarray | None = None) -> np.ndarray:
     """Colours [M,3] uint8 of tracks ``idx`` in frame ``t`` for a colour ``mode`` of :data:`COLOR_MODES`.
 
     ``video`` samples the current frame (the query-frame colour ``colors`` [N,3] without frames); ``label``
     is blue-grey static / orange dynamic; ``label step`` colours by the step that set the label
-    (:func:`step_colors` of ``label_step`` [N]; the label colours for a result without it); ``depth`` needs the
-    tracks' camera depths ``depth`` [M]."""
+    (:func:`step_colors` of ``label_step`` [N]; the label colours for a result without it); ``object`` by the
+    rigid object (:func:`object_colors` of ``object_id`` [N]; likewise); ``depth`` needs the tracks' camera depths
+    ``depth`` [M]."""
     if mode not in COLOR_MODES:
         raise ValueError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
     dyn = is_dynamic[idx]
     if mode == "label step" and label_step is not None:
         return step_colors(label_step[idx], dyn)
-    if mode in ("label", "label step"):
+    if mode == "object" and object_id is not None:
+        return object_colors(object_id[idx], dyn)
+    if mode in ("label", "label step", "object"):
         return label_colors(dyn)
     if mode == "depth":
         return depth_colors(depth)
@@ -154,7 +170,7 @@ def frame_points(res, t: int, order: np.ndarray, k: int, mode: str, frame: np.nd
     pts = res.tracks_3d[idx, t]
     depth = camera_depths(pts, res.poses_c2w[t]) if mode == "depth" else None
     col = point_colors(mode, idx, t, tracks_2d=res.tracks_2d, is_dynamic=res.is_dynamic, colors=res.colors,
-                       frame=frame, depth=depth, label_step=res.label_step)
+                       frame=frame, depth=depth, label_step=res.label_step, object_id=res.object_id)
     return idx, pts, col
 
 

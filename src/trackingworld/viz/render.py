@@ -28,12 +28,15 @@ from trackingworld.viz.plots import plot_camera_path
 from trackingworld.viz.splat import draw_polyline, follow_poses, frustum_lines, orbit_poses, splat
 
 RENDER_DIR = "render"
+COLOR_BY = ("depth", "label", "step", "object")  # the colours of tracks_2d.mp4 (RenderConfig.color_by)
 VIEWS = ("orbit", "follow", "input", "fixed")
 
 
 @dataclass
 class RenderConfig:
-    color_by: str = "depth"  # tracks_2d.mp4: depth | label | step (the step that set the label, display.STEP_COLORS)
+    # tracks_2d.mp4: depth | label | step (the step that set the label, display.STEP_COLORS) | object (the rigid
+    # object that placed the track, display.OBJECT_COLORS)
+    color_by: str = "depth"
     max_tracks: int = 600  # tracks drawn per frame in tracks_2d.mp4 (about)
     tail: int = 8  # frames of a 2D tail
     view: str = "orbit"  # scene_3d.mp4 viewpoint: orbit | follow | input | fixed (at eye, looking at target)
@@ -48,8 +51,8 @@ class RenderConfig:
 
     def validate(self) -> None:
         """One-line errors for settings that cannot render."""
-        if self.color_by not in ("depth", "label", "step"):
-            raise InputError(f"--color-by must be depth, label or step, got {self.color_by!r}")
+        if self.color_by not in COLOR_BY:
+            raise InputError(f"--color-by must be one of {', '.join(COLOR_BY)}, got {self.color_by!r}")
         if self.view not in VIEWS:
             raise InputError(f"--view must be one of {', '.join(VIEWS)}, got {self.view!r}")
         if self.view == "fixed" and self.eye is None:
@@ -92,6 +95,11 @@ def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
             raise InputError("--color-by step: this result has no label_step (a baseline run, or one written before "
                              "stop 76)")
         col = D.step_colors(res.label_step[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
+    elif cfg.color_by == "object":
+        if res.object_id is None:
+            raise InputError("--color-by object: this result has no object_id (a baseline run, or one written before "
+                             "stop 82)")
+        col = D.object_colors(res.object_id[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     elif cfg.color_by == "label":
         col = D.label_colors(res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     else:  # depth

@@ -11,6 +11,8 @@ nerfstudio     nerfstudio/transforms.json, images/,        nerfstudio (``ns-trai
 ply            ply/frame_00000.ply ..., ply/static.ply     trimesh, open3d, MeshLab, CloudCompare
 tapvid3d       tapvid3d.npz                                TAPVid-3D evaluation code
 rrd            result.rrd                                  ``rerun result.rrd``
+objects        objects/object_000_tum.txt ...,             evo, TUM tools (each rigid object's
+               objects/objects.json                        object-to-world trajectory)
 =============  ==========================================  ==============================================
 
 Every output is written under a temporary name and renamed, so a failed export leaves nothing half-written.
@@ -33,9 +35,9 @@ from trackingworld.io.result import Result, load_result, tum_lines
 from trackingworld.progress import Progress
 from trackingworld.viz import display as D
 
-FORMATS = ("tum", "colmap", "nerfstudio", "ply", "tapvid3d", "rrd")
+FORMATS = ("tum", "colmap", "nerfstudio", "ply", "tapvid3d", "rrd", "objects")
 DEFAULT_NAMES = {"tum": "poses_tum.txt", "colmap": "colmap", "nerfstudio": "nerfstudio", "ply": "ply",
-                 "tapvid3d": "tapvid3d.npz", "rrd": "result.rrd"}
+                 "tapvid3d": "tapvid3d.npz", "rrd": "result.rrd", "objects": "objects"}
 DEFAULT_MAX_POINTS = {"colmap": 100_000, "nerfstudio": 300_000, "ply": 300_000, "rrd": 150_000}
 EXPORT_DIR = "export"
 
@@ -96,6 +98,8 @@ def export(result_dir: str | os.PathLike, fmt: str, out: str | os.PathLike | Non
             info = write_nerfstudio(res, tmp, names, "static_points.ply")
     elif fmt == "ply":
         info = _export_ply(res, out, frames, order, cap, verbose)
+    elif fmt == "objects":
+        info = _export_objects(res, out)
     else:  # rrd
         from trackingworld.io.export.rrd import write_rrd
 
@@ -122,3 +126,25 @@ def _export_ply(res: Result, out: Path, frames, order, cap: int, verbose: bool) 
             n += len(idx)
             p.update(t + 1)
     return {"frames": res.num_frames, "points": n, "static_points": len(sidx)}
+
+
+def _export_objects(res: Result, out: Path) -> dict:
+    """Each rigid object's object-to-world poses (``object_poses``) in the frames its motion is solved in, one TUM
+    file per object (timestamp = frame index), and ``objects.json``: per object its file, track count and frames."""
+    import json
+
+    if res.object_id is None:
+        raise InputError("--format objects: this result has no object_id (a baseline run, or one written before stop "
+                         "82)")
+    listing = []
+    with atomic_dir(out) as tmp:
+        for g, O in enumerate(res.object_poses):
+            frames = np.flatnonzero(np.isfinite(O[:, 0, 0]))
+            name = f"object_{g:03d}_tum.txt"
+            (tmp / name).write_text(tum_lines(O[frames], frames))
+            listing.append({"object": g, "file": name, "tracks": int((res.object_id == g).sum()),
+                            "frames": [int(frames[0]), int(frames[-1])] if len(frames) else [],
+                            "solved_frames": int(len(frames))})
+        (tmp / "objects.json").write_text(json.dumps({"objects": listing, "pose": "object-to-world, world metres, "
+                                                      "timestamp = frame index"}, indent=1) + "\n")
+    return {"objects": len(listing), "tracks": int((res.object_id >= 0).sum())}
