@@ -122,6 +122,19 @@ def test_viewer_server_side(tmp_path):
         assert v.trails is not None and len(v.trail_idx) == int(res.is_dynamic.sum())
         v.color_mode.value = "label step"  # this result has no label_step: said in the panel
         assert "no label_step" in v.info.content
+        v.color_mode.value = "object"  # ... nor object_id
+        assert "no object_id" in v.info.content
+    finally:
+        v.stop()
+    ids = np.where(res.is_dynamic, 0, -1).astype(np.int32)  # every dynamic track one object
+    obj = Result(**{**res.as_dict(), "object_id": ids,
+                    "object_poses": np.tile(np.eye(4, dtype=np.float32), (1, res.num_frames, 1, 1))})
+    v = Viewer(obj, frames, port=free_port(), verbose=False)
+    try:
+        v.color_mode.value = "object"
+        assert "1 rigid object," in v.info.content
+        idx = v.frame_data(0)[0]
+        assert (v.points.colors == D.OBJECT_COLORS[0]).all(1).sum() == int(obj.is_dynamic[idx].sum()) > 0
     finally:
         v.stop()
 

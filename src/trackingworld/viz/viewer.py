@@ -154,7 +154,8 @@ class Viewer:
                 legend = ("\n\n" + D.step_legend() if self.res.label_step is not None
                           else "\n\n(no label_step in this result: label colours)")
             elif self.color_mode.value == "object":
-                legend = (f"\n\n{len(self.res.object_poses)} rigid objects, one colour each; the tracks of none in "
+                G = 0 if self.res.object_poses is None else len(self.res.object_poses)
+                legend = (f"\n\n{G} rigid object{'' if G == 1 else 's'}, one colour each; the tracks of none in "
                           "the label colours" if self.res.object_id is not None
                           else "\n\n(no object_id in this result: label colours)")
             self.info.content = (f"frame **{self.t}** / {self.T - 1} &nbsp; drawn **{len(idx):,}** of "
