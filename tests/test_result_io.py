@@ -25,10 +25,27 @@ def test_round_trip(tmp_path):
         got = getattr(back, k)
         assert got.dtype == Result.DTYPES[k], k
         np.testing.assert_array_equal(got, v)
-    assert set(np.load(tmp_path / "result.npz").files) == set(Result.DTYPES) - {"label_step"}  # optional: none given
-    assert back.label_step is None
+    optional = {"label_step", "object_id", "object_poses"}  # none given
+    assert set(np.load(tmp_path / "result.npz").files) == set(Result.DTYPES) - optional
+    assert back.label_step is None and back.object_id is None and back.object_poses is None
     lines = (tmp_path / "poses_tum.txt").read_text().splitlines()
     assert len(lines) == 4 and lines[0].split() == ["0", *(["0.000000000"] * 6), "1.000000000"]
+
+
+def test_the_rigid_objects_round_trip_with_their_unsolved_frames(tmp_path):
+    r = make_result()
+    T = r.num_frames
+    for G in (0, 2):  # no object (the rigid step off, or nothing rigid), and two
+        poses = np.tile(np.eye(4, dtype=np.float32), (G, T, 1, 1))
+        if G:
+            poses[1, :2] = np.nan  # the second object's motion is not solved in frames 0-1
+        ids = np.full(r.num_tracks, -1, np.int32)
+        ids[:G] = np.arange(G)
+        save_result(tmp_path, Result(**{**r.as_dict(), "object_id": ids, "object_poses": poses}))
+        back = load_result(tmp_path)
+        np.testing.assert_array_equal(back.object_id, ids)
+        assert back.object_poses.shape == (G, T, 4, 4) and back.object_poses.dtype == np.float32
+        np.testing.assert_array_equal(back.object_poses, poses)  # NaN where it was
 
 
 def test_tum_round_trip_with_evo(tmp_path):

@@ -111,10 +111,9 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
             into = None if carry is None else pool.submit(_on_one_core, carry).result
             if beside is not None:
                 pool.submit(beside)
-            xyz[dyn], groups, motions, counts = rigid_movers(uv[dyn].astype(np.float64), vis[dyn], target,
-                                            xyz[dyn].astype(np.float64), poses.astype(np.float64),
-                                            K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings,
-                                            note, dtype, device, size, into)
+            xyz[dyn], groups, motions, counts = rigid_movers(
+                uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64), poses.astype(np.float64),
+                K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device, size, into)
     finally:
         if pool is not None:
             pool.shutdown(wait=False)  # the carrying was waited for (into); ``beside`` may go on
