@@ -69,3 +69,39 @@ def test_the_depth_error_probe_splits_an_error_along_and_across_the_ray():
     assert np.allclose(depth, [5.0, 10.0])
     assert np.allclose(along, [0.2, -0.4])  # beyond the point positive, nearer negative
     assert np.allclose(across, [0.0, 0.3])
+
+
+def test_the_scale_probe_makes_true_static_tracks_with_noise_off_their_query_frame(tiny_scene):
+    import numpy as np
+
+    from trackingworld.eval.evaluate import load_gt
+    from trackingworld.geometry import invert_pose, transform, unproject
+
+    probe = importlib.import_module("probe_ba_scale")
+    gt = load_gt(tiny_scene, 10)
+    exact, vis, q = probe.true_static_tracks(gt, 8, 5, 0.0, np.random.default_rng(0))
+    n = np.arange(len(q))
+    qf, x, y = q[:, 0].astype(int), q[:, 1].astype(int), q[:, 2].astype(int)
+    assert len(q) > 100 and set(qf) == {0, 5} and vis[n, qf].all() and (vis.sum(1) >= 2).mean() > 0.8
+    np.testing.assert_array_equal(exact[n, qf], q[:, 1:])  # they start on the grid
+    assert not gt["dynamic"][qf, y, x].any()  # on the static background
+    # seen where the true depth at the projection is the point's own camera depth
+    K = gt["K"].astype(np.float64)
+    cam = unproject(q[:, 1:].astype(np.float64), gt["depth"][qf, y, x].astype(np.float64), K)
+    world = np.stack([transform(gt["poses_c2w"][f], c[None])[0] for f, c in zip(qf, cam, strict=True)])
+    t = 7
+    s = np.flatnonzero(vis[:, t])
+    z = transform(invert_pose(gt["poses_c2w"][t]), world[s])[:, 2]
+    xi, yi = np.round(exact[s, t]).astype(int).T
+    assert (np.abs(gt["depth"][t, yi, xi] / z - 1) < probe.VISIBLE_DEPTH_TOL).all()
+    noisy, vis2, _ = probe.true_static_tracks(gt, 8, 5, 0.5, np.random.default_rng(0))
+    np.testing.assert_array_equal(vis2, vis)
+    d = noisy - exact
+    np.testing.assert_array_equal(d[n, qf], 0.0)  # the query frame exact
+    off = np.ones(vis.shape, bool)
+    off[n, qf] = False
+    assert 0.45 < d[off].std() < 0.55 and abs(d[off].mean()) < 0.02
+    poses = gt["poses_c2w"].copy()
+    assert probe.path_ratio(poses, gt["poses_c2w"]) == 1.0
+    poses[:, :3, 3] *= 1.01
+    assert abs(probe.path_ratio(poses, gt["poses_c2w"]) - 1.01) < 1e-6  # float32 poses
