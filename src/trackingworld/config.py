@@ -100,8 +100,9 @@ class OptimConfig:
     # lambda_dc). Lower trusts the parallax over the prior's smooth warp, higher the prior's per-frame scale; ten
     # synthetic scenes at 0.3 / 0.1 / 0.03 gained on some and lost on others, 1 kept (docs/results.md, stop 40).
     # Higher also holds the cameras' scale against the prior's depths, a weak mode that the tracks' noise moves by
-    # up to 0.5%: with the true depth as the prior, 10 took `default` 50 from 83.7 to 89.8, but with its own prior
-    # from 73.3 to 68.5 (3: 71.7), the warp then placing the points (stop 82, benchmarks/probe_ba_scale.py)
+    # up to 0.5%: with the true depth as the prior and the true movers' masks, 10 took `default` 50 from 83.7 to
+    # 89.8, but with its own inputs from 73.3 to 68.5 (3: 71.7), the warp then placing the points (stop 82,
+    # benchmarks/probe_ba_scale.py)
     ba_dc_weight: float = 1.0
     # with this > 0 (radians; not in the paper) each point's depth term in stage 2's bundle adjustment is weighed
     # by p0^2 / (p0^2 + a^2), a the angle its first and last observed camera centres see it under: a point seen
