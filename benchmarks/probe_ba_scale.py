@@ -24,8 +24,9 @@ import numpy as np
 
 from _common import run_and_evaluate, scratch_dir, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.config import InputConfig, RunConfig, Track2DConfig
+from trackingworld.eval.dense import static_points
 from trackingworld.eval.evaluate import load_gt
-from trackingworld.geometry import invert_pose, project, transform, unproject
+from trackingworld.geometry import invert_pose, project, transform
 from trackingworld.io.atomic import write_npz
 from trackingworld.io.result import load_result
 
@@ -35,34 +36,45 @@ MASK_DILATE_PX = 3
 
 def true_static_tracks(gt: dict, grid: int, every: int, noise: float, rng: np.random.Generator):
     """Static tracks from the ground truth: ``(uv [N,T,2] px, vis [N,T], queries [N,3] (frame, x, y))``, started on
-    every ``grid`` px of every ``every``-th frame where no true mover is, projected with the true poses into every
-    frame, seen there while inside the image, off every mover and at the true depth within VISIBLE_DEPTH_TOL; uv
-    with Gaussian noise of ``noise`` px off the query frame."""
+    every ``grid`` px of every ``every``-th frame where no true mover is, their true points
+    (``eval.dense.static_points``) projected with the true poses into every frame, seen there while inside the image,
+    off every mover and at the true depth within VISIBLE_DEPTH_TOL; uv with Gaussian noise of ``noise`` px off the
+    query frame, which keeps the query pixel itself."""
     depth, moving, K, P = gt["depth"], gt["dynamic"], gt["K"].astype(np.float64), gt["poses_c2w"]
     T, H, W = depth.shape
-    w2c = invert_pose(P)
-    uvs, viss, qs = [], [], []
+    ys, xs = (a.ravel() for a in np.mgrid[grid // 2:H:grid, grid // 2:W:grid])
+    qs = []
     for q in range(0, T, every):
-        ys, xs = np.mgrid[grid // 2:H:grid, grid // 2:W:grid]
         keep = ~moving[q, ys, xs]
-        xs, ys = xs[keep], ys[keep]
-        px = np.stack([xs, ys], 1).astype(np.float64)
-        world = transform(P[q], unproject(px, depth[q, ys, xs].astype(np.float64), K))
-        uv = np.zeros((len(px), T, 2))
-        vis = np.zeros((len(px), T), bool)
+        qs.append(np.stack([np.full(int(keep.sum()), q), xs[keep], ys[keep]], 1))
+    queries = np.concatenate(qs)
+    qf, px = queries[:, 0], queries[:, 1:].astype(np.float64)
+    n = np.arange(len(queries))
+    uv = np.zeros((len(queries), T, 2))
+    uv[n, qf] = px
+    world, _ = static_points(uv, qf, depth, P, K)
+    # the noise drawn query frame by query frame, then frame by frame, none at the query frame
+    draws = np.zeros((len(queries), T, 2))
+    at = 0
+    for block in qs:
+        q = int(block[0, 0]) if len(block) else 0
         for t in range(T):
-            u, z = project(transform(w2c[t], world), K)
-            xi = np.clip(np.round(u[:, 0]).astype(int), 0, W - 1)
-            yi = np.clip(np.round(u[:, 1]).astype(int), 0, H - 1)
-            inside = (u[:, 0] >= 0) & (u[:, 0] <= W - 1) & (u[:, 1] >= 0) & (u[:, 1] <= H - 1) & (z > 0)
-            agree = np.abs(z / np.maximum(depth[t, yi, xi], 1e-6) - 1) < VISIBLE_DEPTH_TOL
-            vis[:, t] = inside & agree & ~moving[t, yi, xi]
-            uv[:, t] = px if t == q else u + noise * rng.standard_normal(u.shape)  # the query pixel itself
-        vis[:, q] = True
-        uvs.append(uv)
-        viss.append(vis)
-        qs.append(np.stack([np.full(len(px), q), xs, ys], 1))
-    return np.concatenate(uvs), np.concatenate(viss), np.concatenate(qs).astype(np.float32)
+            if t != q:
+                draws[at:at + len(block), t] = rng.standard_normal((len(block), 2))
+        at += len(block)
+    vis = np.zeros((len(queries), T), bool)
+    w2c = invert_pose(P)
+    for t in range(T):
+        u, z = project(transform(w2c[t], world), K)
+        xi = np.clip(np.round(u[:, 0]).astype(int), 0, W - 1)
+        yi = np.clip(np.round(u[:, 1]).astype(int), 0, H - 1)
+        inside = (u[:, 0] >= 0) & (u[:, 0] <= W - 1) & (u[:, 1] >= 0) & (u[:, 1] <= H - 1) & (z > 0)
+        agree = np.abs(z / np.maximum(depth[t, yi, xi], 1e-6) - 1) < VISIBLE_DEPTH_TOL
+        vis[:, t] = inside & agree & ~moving[t, yi, xi]
+        uv[:, t] = u + noise * draws[:, t]
+    uv[n, qf] = px  # the query pixel itself
+    vis[n, qf] = True
+    return uv, vis, queries.astype(np.float32)
 
 
 def path_ratio(poses: np.ndarray, truth: np.ndarray) -> float:
