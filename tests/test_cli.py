@@ -57,11 +57,21 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     (["run", "{frames}", "--out", "{out}", "--intrinsics", "1,2,3"], "intrinsics must hold"),
     (["run", "{frames}", "--out", "{out}", "--depth", "{bad}"], "depth must be"),
     (["eval", "{out}", "--gt", "{frames}"], "no such result"),
+    # NumPy files that cannot be read: numpy's own errors are a traceback (a cut-short .npz, an empty .npy) or
+    # misleading (a text file is "pickled data")
+    (["run", "{frames}", "--out", "{out}", "--tracks", "{cut}", "--quiet"], "cut.npz: cannot read the tracks"),
+    (["run", "{frames}", "--out", "{out}", "--depth", "{empty}", "--quiet"], "empty.npy: the depth file is empty"),
+    (["run", "{frames}", "--out", "{out}", "--masks", "{text}", "--quiet"], "text.npy: the masks file is not a NumPy"),
 ])
 def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     bad = tmp_path / "bad.txt"
     bad.write_text("x")
-    fill = {"out": str(tmp_path / "o"), "frames": str(tiny_scene / "input" / "frames"), "bad": str(bad)}
+    np.savez(tmp_path / "whole.npz", tracks=np.zeros((50, 6, 2)), visible=np.ones((50, 6), bool))
+    (tmp_path / "cut.npz").write_bytes((tmp_path / "whole.npz").read_bytes()[:200])
+    (tmp_path / "empty.npy").write_bytes(b"")
+    (tmp_path / "text.npy").write_text("0 1 0\n")
+    fill = {"out": str(tmp_path / "o"), "frames": str(tiny_scene / "input" / "frames"), "bad": str(bad),
+            **{k: str(tmp_path / f) for k, f in (("cut", "cut.npz"), ("empty", "empty.npy"), ("text", "text.npy"))}}
     rc = main([a.format(**fill) for a in args])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and needle in err and len(err.splitlines()) == 1

@@ -87,6 +87,32 @@ def test_load_result_errors(tmp_path):
     np.savez(tmp_path / "result.npz", a=np.zeros(1))
     with pytest.raises(InputError, match="missing keys"):
         load_result(tmp_path)
+    whole = (tmp_path / "result.npz").read_bytes()
+    (tmp_path / "result.npz").write_bytes(whole[: len(whole) // 2])  # a copy cut short
+    with pytest.raises(InputError, match="result.npz: cannot read the result file: damaged or cut short"):
+        load_result(tmp_path)
+
+
+def test_read_arrays_by_content_and_its_errors(tmp_path):
+    from trackingworld.io.arrays import read_array, read_arrays
+
+    a = np.arange(6.0).reshape(2, 3)
+    np.save(tmp_path / "a.npy", a)
+    np.savez(tmp_path / "z.npz", other=np.zeros(2), depth=a)
+    (tmp_path / "zip_named.npy").write_bytes((tmp_path / "z.npz").read_bytes())  # the content decides, not the name
+    np.testing.assert_array_equal(read_arrays(tmp_path / "a.npy", "depth")[""], a)
+    assert sorted(read_arrays(tmp_path / "z.npz", "depth")) == ["depth", "other"]
+    for f in ("a.npy", "z.npz", "zip_named.npy"):
+        np.testing.assert_array_equal(read_array(tmp_path / f, "depth", "depth"), a)
+    np.testing.assert_array_equal(read_array(tmp_path / "z.npz", "masks", "masks"), np.zeros(2))  # the first member
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object))
+    (tmp_path / "short.npy").write_bytes((tmp_path / "a.npy").read_bytes()[:-8])
+    np.savez(tmp_path / "none.npz")
+    for f, why in (("missing.npy", "cannot open the depth file"), ("obj.npy", "holds Python objects"),
+                   ("short.npy", "damaged or cut short"), ("none.npz", "holds no array")):
+        with pytest.raises(InputError, match=why) as e:
+            read_array(tmp_path / f, "depth", "depth")
+        assert str(e.value).startswith(str(tmp_path / f)) and "\n" not in str(e.value)
 
 
 def test_priors_loaders(tmp_path):

@@ -22,6 +22,7 @@ from trackingworld.eval.match import match_queries
 from trackingworld.eval.tracks import tapvid_2d, tapvid_3d, world_accuracy
 from trackingworld.eval.trajectory import apply_sim3, camera_metrics, sim3_from_poses, sim3_from_trajectories
 from trackingworld.geometry import invert_pose, nearest_pixel, transform
+from trackingworld.io.arrays import read_array, read_arrays
 from trackingworld.io.atomic import write_json
 from trackingworld.io.result import load_result
 
@@ -32,10 +33,9 @@ def load_gt(scene_dir: str | Path, T: int | None = None) -> dict:
     path = scene_dir / "gt.npz" if scene_dir.is_dir() else scene_dir
     if not path.exists():
         raise InputError(f"{path}: no ground truth here (expected a folder written by `trackingworld synth`)")
-    with np.load(path) as z:
-        gt = {k: z[k] for k in z.files}
+    gt = read_arrays(path, "ground truth")
     prior = path.parent / "input" / "depth.npy"
-    gt["prior_depth"] = np.load(prior) if prior.exists() else None
+    gt["prior_depth"] = read_array(prior, "depth prior", "depth") if prior.exists() else None
     T_gt = gt["poses_c2w"].shape[0]
     if T is not None and T != T_gt:
         if T > T_gt:

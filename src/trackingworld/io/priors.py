@@ -9,6 +9,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from trackingworld.errors import InputError
+from trackingworld.io.arrays import read_array
 from trackingworld.io.frames import list_images
 
 
@@ -39,17 +40,9 @@ def load_depth(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
         if depth.shape[0] < T:
             raise InputError(f"{path}: depth folder has {depth.shape[0]} usable frames, video has {T}")
     else:
-        try:
-            if path.suffix == ".npz":
-                with np.load(path) as z:
-                    key = "depth" if "depth" in z.files else z.files[0]
-                    depth = z[key]
-            elif path.suffix == ".npy":
-                depth = np.load(path)
-            else:
-                raise InputError(f"{path}: depth must be .npy, .npz or a folder of 16-bit PNGs")
-        except (OSError, ValueError) as e:
-            raise InputError(f"{path}: cannot read depth ({e})") from e
+        if path.suffix not in (".npy", ".npz"):
+            raise InputError(f"{path}: depth must be .npy, .npz or a folder of 16-bit PNGs")
+        depth = read_array(path, "depth", "depth")
         if depth.ndim == 4 and depth.shape[1] == 1:
             depth = depth[:, 0]
         if depth.ndim != 3:
@@ -85,14 +78,7 @@ def load_masks(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
         return np.stack(masks)
     if path.suffix not in (".npy", ".npz"):
         raise InputError(f"{path}: masks must be a folder of PNGs or a .npy array")
-    try:
-        if path.suffix == ".npz":
-            with np.load(path) as z:
-                m = z["masks"] if "masks" in z.files else z[z.files[0]]
-        else:
-            m = np.load(path)
-    except (OSError, ValueError) as e:
-        raise InputError(f"{path}: cannot read masks ({e})") from e
+    m = read_array(path, "masks", "masks")
     if m.ndim != 3:
         raise InputError(f"{path}: masks must be [T,H,W], got shape {m.shape}")
     return _select(m != 0, T, stride, path, "masks")

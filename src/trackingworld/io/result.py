@@ -35,6 +35,7 @@ import numpy as np
 
 from trackingworld.errors import InputError
 from trackingworld.geometry import quat_wxyz
+from trackingworld.io.arrays import read_arrays
 from trackingworld.io.atomic import atomic_path, write_npz
 
 RESULT_FILE = "result.npz"
@@ -160,14 +161,9 @@ def load_result(path: str | os.PathLike) -> Result:
         path = path / RESULT_FILE
     if not path.exists():
         raise InputError(f"{path}: no such result file")
-    try:
-        with np.load(path) as z:
-            # the fields with a default (None) are optional
-            missing = [f.name for f in fields(Result) if f.name not in z.files and f.default is MISSING]
-            if missing:
-                raise InputError(f"{path}: not a trackingworld result (missing keys: {', '.join(missing)})")
-            return Result(**{f.name: z[f.name] for f in fields(Result) if f.name in z.files})
-    except (OSError, ValueError) as e:
-        if isinstance(e, InputError):
-            raise
-        raise InputError(f"{path}: cannot read result ({e})") from e
+    z = read_arrays(path, "result")
+    # the fields with a default (None) are optional
+    missing = [f.name for f in fields(Result) if f.name not in z and f.default is MISSING]
+    if missing:
+        raise InputError(f"{path}: not a trackingworld result (missing keys: {', '.join(missing)})")
+    return Result(**{f.name: z[f.name] for f in fields(Result) if f.name in z})

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from trackingworld.errors import InputError
+from trackingworld.io.arrays import read_arrays
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
 
@@ -30,11 +31,8 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such tracks file")
-    try:
-        z = np.load(path, allow_pickle=False)
-        d = {k: z[k] for k in z.files} if hasattr(z, "files") else {}
-    except (OSError, ValueError) as e:
-        raise InputError(f"{path}: cannot read tracks ({e})") from e
+    d = read_arrays(path, "tracks")
+    d.pop("", None)  # a bare .npy array: no layout to read it by (the error below)
     if "visible" in d and "tracks" in d:  # trackingworld track2d
         tracks, vis, queries = d["tracks"], d["visible"], d.get("queries")
     elif "occluded" in d:  # TAPNet
