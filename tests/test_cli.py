@@ -62,6 +62,8 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     (["run", "{frames}", "--out", "{out}", "--tracks", "{cut}", "--quiet"], "cut.npz: cannot read the tracks"),
     (["run", "{frames}", "--out", "{out}", "--depth", "{empty}", "--quiet"], "empty.npy: the depth file is empty"),
     (["run", "{frames}", "--out", "{out}", "--masks", "{text}", "--quiet"], "text.npy: the masks file is not a NumPy"),
+    # an image that is not one: imageio's last plugin (PyAV) reads no frame from it, "need at least one array"
+    (["run", "{frames}", "--out", "{out}", "--masks", "{junk}", "--quiet"], "00003.png: cannot read image: not an"),
 ])
 def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     bad = tmp_path / "bad.txt"
@@ -70,8 +72,11 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     (tmp_path / "cut.npz").write_bytes((tmp_path / "whole.npz").read_bytes()[:200])
     (tmp_path / "empty.npy").write_bytes(b"")
     (tmp_path / "text.npy").write_text("0 1 0\n")
+    shutil.copytree(tiny_scene / "input" / "masks", tmp_path / "junk")
+    (tmp_path / "junk" / "00003.png").write_text("not a PNG")
     fill = {"out": str(tmp_path / "o"), "frames": str(tiny_scene / "input" / "frames"), "bad": str(bad),
-            **{k: str(tmp_path / f) for k, f in (("cut", "cut.npz"), ("empty", "empty.npy"), ("text", "text.npy"))}}
+            **{k: str(tmp_path / f) for k, f in (("cut", "cut.npz"), ("empty", "empty.npy"), ("text", "text.npy"),
+                                         ("junk", "junk"))}}
     rc = main([a.format(**fill) for a in args])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and needle in err and len(err.splitlines()) == 1

@@ -18,6 +18,17 @@ def list_images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS)
 
 
+def read_image(path: Path) -> np.ndarray:
+    """One image file (a frame, a mask or a depth PNG) as imageio reads it, or an :class:`InputError` naming it
+    where it is not an image, damaged or cut short: imageio hands a file no image plugin takes to PyAV, which reads
+    no frame from it ("need at least one array to stack"), and Pillow calls some broken PNGs a SyntaxError."""
+    try:
+        return iio.imread(path)
+    except (OSError, ValueError, RuntimeError, SyntaxError) as e:
+        why = "no image in it" if "at least one array" in str(e) else str(e) or type(e).__name__
+        raise InputError(f"{path}: cannot read image: not an image, damaged or cut short ({why})") from e
+
+
 def _to_rgb(img: np.ndarray, src: Path) -> np.ndarray:
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
@@ -52,10 +63,7 @@ def read_frames(
         if not files:
             raise InputError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_EXTS))})")
         for f in files:
-            try:
-                frames.append(_to_rgb(iio.imread(f), f))
-            except (OSError, ValueError) as e:
-                raise InputError(f"{f}: cannot read image ({e})") from e
+            frames.append(_to_rgb(read_image(f), f))
     else:
         if path.suffix.lower() not in VIDEO_EXTS and path.suffix.lower() not in IMAGE_EXTS:
             raise InputError(f"{path}: unknown input type (expected a video file or a folder of images)")

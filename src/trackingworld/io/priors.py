@@ -5,12 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from trackingworld.errors import InputError
 from trackingworld.io.arrays import read_array
-from trackingworld.io.frames import list_images
+from trackingworld.io.frames import list_images, read_image
 
 
 def _select(arr: np.ndarray, T_video: int, stride: int, path: Path, what: str) -> np.ndarray:
@@ -32,7 +31,7 @@ def load_depth(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
             raise InputError(f"{path}: depth folder holds no PNG files")
         imgs = []
         for f in files[::stride][:T]:
-            d = iio.imread(f)
+            d = read_image(f)
             if d.dtype != np.uint16 or d.ndim != 2:
                 raise InputError(f"{f}: depth PNG must be single-channel 16-bit millimetres, got {d.dtype} {d.shape}")
             imgs.append(d.astype(np.float32) / 1000.0)
@@ -73,7 +72,7 @@ def load_masks(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
             raise InputError(f"{path}: mask folder has {len(files)} usable images, video has {T}")
         masks = []
         for f in files:
-            m = iio.imread(f)
+            m = read_image(f)
             masks.append((m.max(axis=-1) if m.ndim == 3 else m) > 0)
         return np.stack(masks)
     if path.suffix not in (".npy", ".npz"):
