@@ -64,6 +64,9 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     (["run", "{frames}", "--out", "{out}", "--masks", "{text}", "--quiet"], "text.npy: the masks file is not a NumPy"),
     # an image that is not one: imageio's last plugin (PyAV) reads no frame from it, "need at least one array"
     (["run", "{frames}", "--out", "{out}", "--masks", "{junk}", "--quiet"], "00003.png: cannot read image: not an"),
+    # an output that cannot be written, refused before any work
+    (["run", "{frames}", "--out", "{bad}/o", "--quiet"], "bad.txt is a file, not a folder"),
+    (["track2d", "{frames}", "--out", "{frames}", "--quiet"], "is a folder; --out names the tracks file"),
 ])
 def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     bad = tmp_path / "bad.txt"
@@ -81,6 +84,34 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and needle in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o" / "result.npz").exists()
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["run", "{frames}", "--out", "{out}", "--resize", "-5"], "argument --resize: must be >= 32, got '-5'"),
+    (["run", "{frames}", "--out", "{out}", "--max-frames", "0"], "argument --max-frames: must be >= 1, got '0'"),
+    (["run", "{frames}", "--out", "{out}", "--lambda-ba", "-1"], "argument --lambda-ba: must be >= 0, got '-1'"),
+    (["run", "{frames}", "--out", "{out}", "--epsilon", "nan"], "argument --epsilon: must be > 0, got 'nan'"),
+    (["track2d", "{frames}", "--out", "{out}.npz", "--grid-stride", "x"], "--grid-stride: expected an integer"),
+    (["synth", "{out}", "--frames", "1"], "argument --frames: must be >= 2, got '1'"),
+])
+def test_numbers_out_of_range_refused_by_the_parser(tiny_scene, tmp_path, capsys, args, needle):
+    rc = main([a.format(out=str(tmp_path / "o"), frames=str(tiny_scene / "input" / "frames")) for a in args])
+    assert rc == 2 and needle in capsys.readouterr().err  # argparse's usage, then its one error line
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.npz").exists()
+
+
+def test_a_file_system_error_is_one_line(tiny_scene, tmp_path, capsys, monkeypatch):
+    import errno
+
+    import trackingworld.pipeline.run as pr
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "o" / "result.npz"))
+
+    monkeypatch.setattr(pr, "run", full_disk)
+    rc = main(["run", str(tiny_scene / "input" / "frames"), "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and err.endswith("result.npz: No space left on device") and len(err.splitlines()) == 1
 
 
 def test_offset_stat_takes_any_percentile(capsys):

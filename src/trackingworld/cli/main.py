@@ -27,6 +27,28 @@ def _xyz(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(f"expected X,Y,Z, got {text!r}") from e
 
 
+def _at_least(lo: float, kind: type = int, above: bool = False):
+    """An argparse type: a number of ``kind`` at least ``lo`` (greater than it with ``above``), else argparse's
+    error naming the option, before any work starts (a negative --resize used to reach OpenCV's flow)."""
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
+                                             f"got {text!r}") from e
+        if not (v > lo if above else v >= lo) or v != v:  # v != v: NaN
+            raise argparse.ArgumentTypeError(f"must be {'>' if above else '>='} {lo:g}, got {text!r}")
+        return v
+    parse.__name__ = kind.__name__  # argparse's "invalid <name> value" for errors raised elsewhere
+    return parse
+
+
+POSITIVE_INT = _at_least(1)
+NON_NEGATIVE = _at_least(0.0, float)
+POSITIVE = _at_least(0.0, float, above=True)
+MIN_RESIZE = 32  # px, the processing resolution's long side: OpenCV's DIS flow needs 12 px or more on a side
+
+
 def _patch(text: str) -> tuple[int, int]:
     """``SIZE,STRIDE`` of the DIS patches: positive integers, the stride at most the size."""
     try:
@@ -73,9 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("out")
     s.add_argument("--preset", default="default", choices=["easy", "default", "hard"])
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--frames", type=int, default=None)
+    s.add_argument("--frames", type=_at_least(2), default=None)
     s.add_argument("--size", type=_size, default=None, help="WxH, e.g. 320x240")
-    s.add_argument("--fov", type=float, default=None, help="horizontal field of view, degrees (default 60)")
+    s.add_argument("--fov", type=POSITIVE, default=None, help="horizontal field of view, degrees (default 60)")
     s.add_argument("--grounded", action="store_true",
                    help="movers stand and slide on the floor instead of floating (as people and cars do)")
 
@@ -86,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--skip-done", action="store_true",
                    help="leave out a video whose output folder already holds a finished run (resume a batch)")
-    r.add_argument("--jobs", type=int, default=1, metavar="J",
+    r.add_argument("--jobs", type=POSITIVE_INT, default=1, metavar="J",
                    help="with several inputs: run J videos at once, each in its own process with the CPUs shared out "
                         "(or --threads each); their progress lines are left out (default 1: one at a time)")
     _threads_arg(r)
@@ -100,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--intrinsics", help="FILE (3x3 or fx,fy,cx,cy) | inline fx,fy,cx,cy | auto (default: the depth "
                    "model's focal length when it has one, else self-calibrated from the video's static tracks, "
                    "else --fov)")
-    g.add_argument("--fov", type=float, default=60.0,
+    g.add_argument("--fov", type=POSITIVE, default=60.0,
                    help="horizontal field of view (deg) assumed when nothing better is known (default 60)")
     g.add_argument("--sfm-contact", choices=SFM_CONTACTS, default=SFM_CONTACTS[0],
                    help="how the SfM depth fills a dynamic region: column (default: each column takes the ground "
@@ -112,9 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--method", default="trackingworld", choices=["trackingworld", "baseline"],
                    help="trackingworld (the full method) or baseline (camera-centric lifting, no optimisation)")
     r.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
-    r.add_argument("--max-frames", type=int, default=None)
-    r.add_argument("--frame-stride", type=int, default=1)
-    r.add_argument("--resize", type=int, default=None, help="long side of the processing resolution")
+    r.add_argument("--max-frames", type=POSITIVE_INT, default=None)
+    r.add_argument("--frame-stride", type=POSITIVE_INT, default=1)
+    r.add_argument("--resize", type=_at_least(MIN_RESIZE), default=None, help="long side of the processing resolution")
     _track_args(r)
     _optim_args(r)
     r.add_argument("--quiet", action="store_true")
@@ -123,9 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("input", help="video file or folder of images")
     k.add_argument("--out", required=True, help="output .npz (tracks [N,T,2], visible, confidence, queries)")
     k.add_argument("--device", default="cpu")
-    k.add_argument("--max-frames", type=int, default=None)
-    k.add_argument("--frame-stride", type=int, default=1)
-    k.add_argument("--resize", type=int, default=None)
+    k.add_argument("--max-frames", type=POSITIVE_INT, default=None)
+    k.add_argument("--frame-stride", type=POSITIVE_INT, default=1)
+    k.add_argument("--resize", type=_at_least(MIN_RESIZE), default=None)
     _track_args(k)
     _threads_arg(k)
     k.add_argument("--quiet", action="store_true")
@@ -137,9 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("view", help="open a result in the interactive 4D viewer (browser, localhost)")
     v.add_argument("dir", help="result folder (holding result.npz)")
-    v.add_argument("--port", type=int, default=8080)
+    v.add_argument("--port", type=_at_least(0), default=8080)
     v.add_argument("--host", default="127.0.0.1", help="127.0.0.1 (default, this machine only) or 0.0.0.0")
-    v.add_argument("--max-points", type=int, default=None,
+    v.add_argument("--max-points", type=POSITIVE_INT, default=None,
                    help="points per frame sent to the browser (default 150000; the density slider goes lower)")
     v.add_argument("--video", help="input video or image folder, when it has moved since the run")
 
@@ -161,9 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "median static point)")
     n.add_argument("--swing", type=float, default=d.swing_deg, help="orbit swing, degrees either side")
     n.add_argument("--elevation", type=float, default=d.elevation_deg, help="orbit/follow elevation, degrees")
-    n.add_argument("--max-tracks", type=int, default=d.max_tracks, help="2D tracks drawn per frame (about)")
-    n.add_argument("--max-points", type=int, default=d.max_points, help="static points in the 3D video")
-    n.add_argument("--fps", type=float, default=d.fps)
+    n.add_argument("--max-tracks", type=_at_least(0), default=d.max_tracks, help="2D tracks drawn per frame (about)")
+    n.add_argument("--max-points", type=POSITIVE_INT, default=d.max_points, help="static points in the 3D video")
+    n.add_argument("--fps", type=POSITIVE, default=d.fps)
     n.add_argument("--gt", help="synthetic scene folder: plot the camera path against its ground truth "
                    "(default: the scene of an earlier `trackingworld eval`, if any)")
     n.add_argument("--video", help="input video or image folder, when it has moved since the run")
@@ -175,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("dir", help="result folder (holding result.npz)")
     x.add_argument("--format", required=True, choices=FORMATS)
     x.add_argument("--out", help="output file or folder (default: DIR/export/<name>)")
-    x.add_argument("--max-points", type=int, default=None,
+    x.add_argument("--max-points", type=POSITIVE_INT, default=None,
                    help="cap on exported tracks for colmap (default 100000), nerfstudio/ply (300000), rrd "
                    "(150000); tum and tapvid3d keep all")
     x.add_argument("--no-images", action="store_true", help="colmap/nerfstudio: do not write the frames")
@@ -193,11 +215,11 @@ def _track_args(p) -> None:
                    help="sparse tracker under the dense machinery: flow (weight-free, default) or cotracker3")
     g.add_argument("--cotracker", default="cotracker3",
                    help="cotracker3 (torch hub, downloads once) | hub:REPO_OR_DIR[:ENTRY] | a .pth checkpoint")
-    g.add_argument("--grid-stride", type=int, default=4, help="stride s of the tracked grid (px)")
-    g.add_argument("--query-stride", type=int, default=1, help="track from every k-th frame (authors: 10)")
+    g.add_argument("--grid-stride", type=POSITIVE_INT, default=4, help="stride s of the tracked grid (px)")
+    g.add_argument("--query-stride", type=POSITIVE_INT, default=1, help="track from every k-th frame (authors: 10)")
     g.add_argument("--first-frame-only", action="store_true", help="ablation: no tracking every frame")
-    g.add_argument("--cover-radius", type=float, default=1.0, help="r: px within which a pixel is covered")
-    g.add_argument("--min-component", type=int, default=50, help="tau: smallest new component (px)")
+    g.add_argument("--cover-radius", type=NON_NEGATIVE, default=1.0, help="r: px within which a pixel is covered")
+    g.add_argument("--min-component", type=_at_least(0), default=50, help="tau: smallest new component (px)")
     g.add_argument("--dense-mode", default="upsample", choices=["upsample", "direct"])
     g.add_argument("--upsampler", default="convex", choices=UPSAMPLERS,
                    help="convex: weighted affine fit of the grid neighbours at each pixel; convex-mean: their "
@@ -234,18 +256,16 @@ def _track_config(a):
 
 
 def _threads_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=int, default=None, metavar="N",
+    p.add_argument("--threads", type=POSITIVE_INT, default=None, metavar="N",
                    help="at most N threads in each pool of the process (torch, OpenCV, the frame loops; default: "
                         "every CPU). Runs that share a machine need N x runs <= cores: more threads than cores make "
                         "torch's threads wait on each other, many times slower")
 
 
 def _apply_threads(a) -> None:
-    """``--threads``: the process's thread cap (optim.parallel.set_thread_cap); InputError below 1."""
+    """``--threads``: the process's thread cap (optim.parallel.set_thread_cap; argparse refuses below 1)."""
     if a.threads is None:
         return
-    if a.threads < 1:
-        raise InputError(f"--threads {a.threads}: must be 1 or more")
     from trackingworld.optim.parallel import set_thread_cap
 
     set_thread_cap(a.threads)
@@ -255,13 +275,16 @@ def cmd_track2d(a) -> int:
     import numpy as np
 
     from trackingworld.config import InputConfig
-    from trackingworld.io.atomic import write_npz
+    from trackingworld.io.atomic import check_writable, write_npz
     from trackingworld.pipeline.inputs import load_inputs
     from trackingworld.pipeline.tracks import check_track2d, track_video
 
     _apply_threads(a)
     cfg = _track_config(a)
     check_track2d(cfg)  # before the video is read
+    check_writable(Path(a.out).parent, "folder of the tracks file")
+    if Path(a.out).is_dir():
+        raise InputError(f"{a.out}: is a folder; --out names the tracks file (.npz)")
     inp = load_inputs(InputConfig(input=a.input, max_frames=a.max_frames, frame_stride=a.frame_stride,
                                   resize=a.resize), verbose=not a.quiet)
     tr = track_video(inp.frames, cfg, None, a.device, verbose=not a.quiet)
@@ -298,9 +321,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("world-centric optimisation (defaults: the paper's values)")
     g.add_argument("--solver", default=d.solver, choices=["lm", "adam"],
                    help="lm: structured Gauss-Newton/Levenberg-Marquardt (fast); adam: the paper's schedule")
-    g.add_argument("--clip-len", type=int, default=d.clip_len)
-    g.add_argument("--inlier-px", type=float, default=d.inlier_px, help="stage-1 inlier threshold tau (px)")
-    g.add_argument("--epsilon", type=float, default=d.epsilon,
+    g.add_argument("--clip-len", type=_at_least(2), default=d.clip_len)
+    g.add_argument("--inlier-px", type=POSITIVE, default=d.inlier_px, help="stage-1 inlier threshold tau (px)")
+    g.add_argument("--epsilon", type=POSITIVE, default=d.epsilon,
                    help="offset that marks a moving background (metres, in the depth prior's units: with --depth "
                         "sfm the median depth is 1)")
     g.add_argument("--offset-stat", type=_offset_stat, default=d.offset_stat,
@@ -312,18 +335,18 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "frames, which are then left out, see --static-outliers; max: the paper)")
     g.add_argument("--refine-focal", default=d.refine_focal, choices=REFINE_FOCAL,
                    help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
-    g.add_argument("--lambda-ba", type=float, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
-    g.add_argument("--lambda-dc", type=float, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")
-    g.add_argument("--ba-dc-weight", type=float, default=d.ba_dc_weight, metavar="X",
+    g.add_argument("--lambda-ba", type=NON_NEGATIVE, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
+    g.add_argument("--lambda-dc", type=NON_NEGATIVE, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")
+    g.add_argument("--ba-dc-weight", type=NON_NEGATIVE, default=d.ba_dc_weight, metavar="X",
                    help="stage 2's bundle adjustment weighs the depth term by --lambda-dc times this (below 1: the "
                         "parallax trusted over the prior's shape)")
     g.add_argument("--ba-dc-parallax", type=float, default=d.ba_dc_parallax_rad, metavar="RAD",
                    help="stage 2's depth term per point times p0^2 / (p0^2 + a^2), a the angle (rad) its first and "
                         "last cameras see it under, p0 this: points seen from far apart placed by their parallax "
                         "(0: every point alike, the paper)")
-    g.add_argument("--lambda-asap", type=float, default=d.lambda_asap)
-    g.add_argument("--lambda-arap", type=float, default=d.lambda_arap)
-    g.add_argument("--lambda-ts", type=float, default=d.lambda_ts)
+    g.add_argument("--lambda-asap", type=NON_NEGATIVE, default=d.lambda_asap)
+    g.add_argument("--lambda-arap", type=NON_NEGATIVE, default=d.lambda_arap)
+    g.add_argument("--lambda-ts", type=NON_NEGATIVE, default=d.lambda_ts)
     g.add_argument("--ts-order", type=int, default=d.ts_order, choices=TS_ORDERS,
                    help="stage-3 temporal smoothness: 2 = second difference, constant velocity is free (default); "
                         "1 = first difference, a zero-velocity prior (the paper)")
@@ -534,8 +557,10 @@ def _optim_config(a):
 
 
 def cmd_synth(a) -> int:
+    from trackingworld.io.atomic import check_writable
     from trackingworld.synth import render_and_write
 
+    check_writable(a.out, "scene folder")
     try:
         out = render_and_write(a.out, a.preset, a.seed, a.frames, a.size, fov_deg=a.fov, grounded_movers=a.grounded)
     except ValueError as e:
@@ -546,8 +571,11 @@ def cmd_synth(a) -> int:
 
 def cmd_run(a) -> int:
     from trackingworld.config import InputConfig, RunConfig
+    from trackingworld.io.atomic import check_writable
     from trackingworld.pipeline.batch import SUMMARY_FILE, finished, run_batch, summary
     from trackingworld.pipeline.run import run
+
+    check_writable(a.out)  # before any work: a result that cannot be written is lost at the end
 
     cfg = RunConfig(
         method=a.method, device=a.device,
@@ -558,8 +586,6 @@ def cmd_run(a) -> int:
         track2d=_track_config(a), optim=_optim_config(a),
     )
     _apply_threads(a)
-    if a.jobs < 1:
-        raise InputError(f"--jobs {a.jobs}: must be 1 or more")
     if len(a.input) > 1:
         entries = run_batch(cfg, a.input, a.out, a.skip_done, verbose=not a.quiet, jobs=a.jobs, threads=a.threads)
         n = summary(entries, len(entries))
@@ -617,7 +643,10 @@ def cmd_export(a) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
-    a = p.parse_args(argv)
+    try:
+        a = p.parse_args(argv)
+    except SystemExit as e:  # argparse has printed its usage and error (or the help); its exit code
+        return int(e.code or 0) if not isinstance(e.code, str) else 2
     if a.version:
         from trackingworld import __version__
 
@@ -633,6 +662,11 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as e:
         print(f"trackingworld {a.cmd}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # the file system refused (a folder that cannot be made, a full disk): one line, exit 1
+        if e.filename is None:
+            raise
+        print(f"trackingworld {a.cmd}: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
