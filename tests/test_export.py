@@ -1,6 +1,7 @@
 """Each export format read back through the library that reads it, against the exact result it came from."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -150,6 +151,15 @@ def test_cli_export_and_errors(exact, tmp_path, capsys):
     assert main(["export", str(tmp_path / "missing"), "--format", "ply"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing" in err[0] and "no such result" in err[0]
+    # an output under a file, and a render folder that is a file: refused before any work, nothing written
+    (tmp_path / "afile").write_text("x")
+    assert main(["export", str(d), "--format", "ply", "--out", str(tmp_path / "afile" / "p.ply"), "--quiet"]) == 2
+    assert "afile is a file, not a folder" in capsys.readouterr().err
+    shutil.copy(d / "result.npz", tmp_path / "result.npz")
+    (tmp_path / "render").write_text("x")
+    assert main(["render", str(tmp_path), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "render: cannot be the render folder" in err and len(err.splitlines()) == 1
 
 
 def test_objects_read_back_with_evo_in_the_frames_each_is_solved_in(tmp_path):

@@ -19,7 +19,7 @@ import numpy as np
 
 from trackingworld.errors import InputError
 from trackingworld.geometry import default_intrinsics, look_at
-from trackingworld.io.atomic import atomic_path
+from trackingworld.io.atomic import atomic_path, check_writable
 from trackingworld.io.frames import frames_for_result
 from trackingworld.io.result import Result, load_result
 from trackingworld.progress import Progress
@@ -182,8 +182,9 @@ def render(result_dir: str | Path, cfg: RenderConfig | None = None, gt: str | Pa
     cfg.validate()  # before anything is read or written
     result_dir = Path(result_dir)
     res = load_result(result_dir)
-    frames, why = frames_for_result(result_dir, res.depth.shape, video)
     out_dir = result_dir / RENDER_DIR
+    check_writable(out_dir, "render folder")  # before the videos are made
+    frames, why = frames_for_result(result_dir, res.depth.shape, video)
     out: dict[str, Path] = {}
     if "tracks" in what:
         if frames is None:

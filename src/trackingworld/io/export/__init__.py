@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from trackingworld.errors import InputError
-from trackingworld.io.atomic import atomic_dir, atomic_path, write_npz, write_text
+from trackingworld.io.atomic import atomic_dir, atomic_path, check_writable, write_npz, write_text
 from trackingworld.io.frames import frames_for_result
 from trackingworld.io.result import Result, load_result, tum_lines
 from trackingworld.progress import Progress
@@ -64,6 +64,7 @@ def export(result_dir: str | os.PathLike, fmt: str, out: str | os.PathLike | Non
     result_dir = Path(result_dir)
     res = load_result(result_dir)
     out = Path(out) if out else result_dir / EXPORT_DIR / DEFAULT_NAMES[fmt]
+    check_writable(out.parent, "export folder")  # before the frames are read and the points written
     cap = max_points if max_points is not None else DEFAULT_MAX_POINTS.get(fmt)
     order = D.display_order(res.num_tracks)
     frames = None
