@@ -1,6 +1,7 @@
 import json
 import shutil
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 
@@ -67,6 +68,8 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     # an output that cannot be written, refused before any work
     (["run", "{frames}", "--out", "{bad}/o", "--quiet"], "bad.txt is a file, not a folder"),
     (["track2d", "{frames}", "--out", "{frames}", "--quiet"], "is a folder; --out names the tracks file"),
+    # a processing resolution too small for the flow, refused before the tracking
+    (["run", "{thin}", "--out", "{out}", "--resize", "32", "--quiet"], "processing at 32x3 px is too small"),
 ])
 def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     bad = tmp_path / "bad.txt"
@@ -77,9 +80,12 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     (tmp_path / "text.npy").write_text("0 1 0\n")
     shutil.copytree(tiny_scene / "input" / "masks", tmp_path / "junk")
     (tmp_path / "junk" / "00003.png").write_text("not a PNG")
+    (tmp_path / "thin").mkdir()  # frames of 320x32 px: 32x3 at --resize 32
+    for i in range(3):
+        iio.imwrite(tmp_path / "thin" / f"{i:05d}.png", np.zeros((32, 320, 3), np.uint8))
     fill = {"out": str(tmp_path / "o"), "frames": str(tiny_scene / "input" / "frames"), "bad": str(bad),
             **{k: str(tmp_path / f) for k, f in (("cut", "cut.npz"), ("empty", "empty.npy"), ("text", "text.npy"),
-                                         ("junk", "junk"))}}
+                                         ("junk", "junk"), ("thin", "thin"))}}
     rc = main([a.format(**fill) for a in args])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and needle in err and len(err.splitlines()) == 1

@@ -57,6 +57,9 @@ def resize_stack(arr: np.ndarray, w: int, h: int, interp: int) -> np.ndarray:
     return np.stack([cv2.resize(a, (w, h), interpolation=interp) for a in arr])
 
 
+MIN_SIDE_PX = 16  # the smallest processing resolution's side
+
+
 def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
     frames, fps = read_frames(cfg.input, cfg.max_frames, cfg.frame_stride)
     T, H, W = frames.shape[:3]
@@ -81,6 +84,9 @@ def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
     if cfg.resize and max(W, H) > cfg.resize:
         s = cfg.resize / max(W, H)
         w, h = max(2, round(W * s)), max(2, round(H * s))
+    if min(w, h) < MIN_SIDE_PX:  # OpenCV's DIS flow refuses smaller images deep inside the tracking
+        raise InputError(f"{cfg.input}: processing at {w}x{h} px is too small: the tracking needs {MIN_SIDE_PX} px or "
+                         f"more on each side ({'a larger --resize' if (w, h) != (W, H) else 'a larger video'})")
     K = scale_intrinsics(K_in, w / W, h / H)
     frames_p = resize_stack(frames, w, h, cv2.INTER_AREA)
     depth_p = None if depth is None else resize_stack(depth, w, h, cv2.INTER_LINEAR)
