@@ -138,6 +138,9 @@ def test_priors_loaders(tmp_path):
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     with pytest.raises(InputError, match="bad.txt"):
         parse_intrinsics(tmp_path / "bad.txt")
+    (tmp_path / "K0.txt").write_text("300 0 160\n0 300 120\n0 0 0\n")  # a singular matrix (was a LinAlgError)
+    with pytest.raises(InputError, match="K0.txt: intrinsics must be upper triangular with last row 0 0 1"):
+        parse_intrinsics(tmp_path / "K0.txt")
 
 
 def test_large_arrays_deflated_in_parts_on_threads_read_back_the_same(tmp_path, monkeypatch):

@@ -105,6 +105,8 @@ def parse_intrinsics(spec: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{src}: intrinsics must hold 9 numbers (3x3) or 4 (fx,fy,cx,cy), found {nums.size}")
     if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise InputError(f"{src}: intrinsics need positive finite focal lengths")
+    if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:  # a pinhole camera's matrix: the stages read fx, fy, cx, cy
+        raise InputError(f"{src}: intrinsics must be upper triangular with last row 0 0 1, got {K.tolist()}")
     return K
 
 
