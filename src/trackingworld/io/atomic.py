@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
+from trackingworld.errors import InputError
+
 
 def check_writable(folder: str | os.PathLike, what: str = "output folder") -> None:
     """Raise :class:`~trackingworld.errors.InputError` unless ``folder`` is, or can be made, a folder this process
     may write into: every part of it that exists a folder, the deepest of those writable. Nothing is created, so a
     run refused for its input leaves nothing behind; called before any work, so that the work is not lost at the
     end to a path that was never writable."""
-    from trackingworld.errors import InputError
-
     folder = Path(folder)
     for part in [folder, *folder.parents]:
         if part.exists() or part.is_symlink():
