@@ -177,3 +177,18 @@ def test_label_step_round_trip_and_shape(tmp_path):
     np.testing.assert_array_equal(back.label_step, [0, 4, 5, 0, 8])
     with pytest.raises(ValueError, match="label_step has shape"):
         Result(**{**make_result().as_dict(), "label_step": np.zeros(3)})
+
+
+def test_check_writable_refuses_files_and_unwritable_folders_and_creates_nothing(tmp_path, monkeypatch):
+    import os
+
+    from trackingworld.io.atomic import check_writable
+
+    check_writable(tmp_path / "a" / "b")  # to be made under a writable folder: fine, and not made
+    assert not (tmp_path / "a").exists()
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match=r"cannot be the output folder: .*f is a file, not a folder"):
+        check_writable(tmp_path / "f" / "out")
+    monkeypatch.setattr(os, "access", lambda path, mode: False)  # as a read-only mount answers
+    with pytest.raises(InputError, match="render folder: .* is not writable"):
+        check_writable(tmp_path / "r", "render folder")
