@@ -25,27 +25,28 @@ def read_arrays(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
     arrays (which would need pickle)."""
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            head = f.read(len(NPY_MAGIC))
+        f = open(path, "rb")  # closed by the with below; an error of the open itself reported apart
     except OSError as e:
         raise InputError(f"{path}: cannot open the {what} file ({e.strerror or e})") from e
-    if not head:
-        raise InputError(f"{path}: the {what} file is empty")
-    if not (head.startswith(NPY_MAGIC) or head.startswith(ZIP_MAGIC)):
-        raise InputError(f"{path}: the {what} file is not a NumPy .npy or .npz file (it starts with {head!r})")
-    try:
-        with open(path, "rb") as f:  # np.load on an open file reads it by its content, whatever its name
+    with f:
+        head = f.read(len(NPY_MAGIC))
+        if not head:
+            raise InputError(f"{path}: the {what} file is empty")
+        if not (head.startswith(NPY_MAGIC) or head.startswith(ZIP_MAGIC)):
+            raise InputError(f"{path}: the {what} file is not a NumPy .npy or .npz file (it starts with {head!r})")
+        f.seek(0)
+        try:  # np.load on an open file reads it by its content, whatever its name
             z = np.load(f, allow_pickle=False)
             if isinstance(z, np.ndarray):
                 return {"": z}
             with z:
                 return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
-        why = str(e) or type(e).__name__
-        if "allow_pickle" in why:  # numpy's words for an object array
-            raise InputError(f"{path}: the {what} file holds Python objects, not plain arrays (reading them would "
-                             "run pickle, which trackingworld does not do)") from e
-        raise InputError(f"{path}: cannot read the {what} file: damaged or cut short ({why})") from e
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
+            why = str(e) or type(e).__name__
+            if "allow_pickle" in why:  # numpy's words for an object array
+                raise InputError(f"{path}: the {what} file holds Python objects, not plain arrays (reading them "
+                                 "would run pickle, which trackingworld does not do)") from e
+            raise InputError(f"{path}: cannot read the {what} file: damaged or cut short ({why})") from e
 
 
 def read_array(path: str | os.PathLike, what: str, key: str) -> np.ndarray:
