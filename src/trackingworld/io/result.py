@@ -127,6 +127,18 @@ class Result:
             if np.isinf(self.object_poses).any():
                 raise ValueError("result field object_poses holds infinite values")
 
+    # the stop that first wrote each optional field: a result written before it (or by the baseline) has none
+    OPTIONAL_SINCE = {"label_step": 76, "object_id": 82, "object_poses": 82}
+
+    def require(self, name: str, option: str) -> np.ndarray:
+        """The optional field ``name``, or an :class:`InputError` saying that ``option`` (the flag that needs it)
+        cannot be served by this result."""
+        value = getattr(self, name)
+        if value is None:
+            raise InputError(f"{option}: this result has no {name} (a baseline run, or one written before stop "
+                             f"{self.OPTIONAL_SINCE[name]})")
+        return value
+
     def as_dict(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 

@@ -91,15 +91,11 @@ def tracks_video_frames(res: Result, frames: np.ndarray, cfg: RenderConfig):
     uv = res.tracks_2d[idx]
     vis = res.visible[idx]
     if cfg.color_by == "step":
-        if res.label_step is None:
-            raise InputError("--color-by step: this result has no label_step (a baseline run, or one written before "
-                             "stop 76)")
-        col = D.step_colors(res.label_step[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
+        step = res.require("label_step", "--color-by step")
+        col = D.step_colors(step[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     elif cfg.color_by == "object":
-        if res.object_id is None:
-            raise InputError("--color-by object: this result has no object_id (a baseline run, or one written before "
-                             "stop 82)")
-        col = D.object_colors(res.object_id[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
+        object_id = res.require("object_id", "--color-by object")
+        col = D.object_colors(object_id[idx], res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     elif cfg.color_by == "label":
         col = D.label_colors(res.is_dynamic[idx])[:, None].repeat(res.num_frames, 1)
     else:  # depth

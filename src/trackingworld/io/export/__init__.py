@@ -134,18 +134,16 @@ def _export_objects(res: Result, out: Path) -> dict:
     file per object (timestamp = frame index), and ``objects.json``: per object its file, track count and frames."""
     import json
 
-    if res.object_id is None:
-        raise InputError("--format objects: this result has no object_id (a baseline run, or one written before stop "
-                         "82)")
+    object_id = res.require("object_id", "--format objects")
     listing = []
     with atomic_dir(out) as tmp:
         for g, O in enumerate(res.object_poses):
             frames = np.flatnonzero(np.isfinite(O[:, 0, 0]))
             name = f"object_{g:03d}_tum.txt"
             (tmp / name).write_text(tum_lines(O[frames], frames))
-            listing.append({"object": g, "file": name, "tracks": int((res.object_id == g).sum()),
+            listing.append({"object": g, "file": name, "tracks": int((object_id == g).sum()),
                             "frames": [int(frames[0]), int(frames[-1])] if len(frames) else [],
                             "solved_frames": int(len(frames))})
         (tmp / "objects.json").write_text(json.dumps({"objects": listing, "pose": "object-to-world, world metres, "
                                                       "timestamp = frame index"}, indent=1) + "\n")
-    return {"objects": len(listing), "tracks": int((res.object_id >= 0).sum())}
+    return {"objects": len(listing), "tracks": int((object_id >= 0).sum())}
