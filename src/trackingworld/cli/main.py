@@ -46,7 +46,8 @@ def _at_least(lo: float, kind: type = int, above: bool = False):
 POSITIVE_INT = _at_least(1)
 NON_NEGATIVE = _at_least(0.0, float)
 POSITIVE = _at_least(0.0, float, above=True)
-MIN_RESIZE = 32  # px, the processing resolution's long side: OpenCV's DIS flow needs 12 px or more on a side
+MIN_RESIZE = 32  # px, the smallest --resize (the long side); the short side is checked against
+# pipeline.inputs.MIN_SIDE_PX (16) once the video's size is known
 
 
 def _patch(text: str) -> tuple[int, int]:
