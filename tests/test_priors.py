@@ -72,6 +72,54 @@ def test_sfm_without_parallax_says_so_and_returns_constant_depth():
     assert (r.depth == 1).all() and np.allclose(r.poses_c2w, np.eye(4))
 
 
+def _drifting(tr: TrackResult, step_px: float, seed: int = 1) -> TrackResult:
+    """``tr`` with each track's own random walk added (``step_px`` px per frame and axis): a chained-flow tracker's
+    drift."""
+    walk = np.cumsum(np.random.default_rng(seed).normal(0, step_px, tr.tracks.shape), axis=1)
+    return TrackResult((tr.tracks + walk).astype(np.float32), tr.visible, tr.confidence, tr.queries)
+
+
+def test_sfm_declines_a_fixed_camera_whose_tracks_drift():
+    # a tripod: the tracks move by their drift alone, which leaves more residual parallax than min_parallax_px
+    X, _ = _plane_scene()
+    fixed = np.stack([pose_from_rt(np.eye(3), np.zeros(3)) for _ in range(30)])
+    tr = _drifting(_tracks_of(X, fixed)[0], 0.45)
+    masks = np.zeros((30, 240, 320), bool)
+    cfg = SfMConfig(verbose=False)
+    r = sfm_depth(tr, np.ones(len(X), bool), K, masks, cfg)
+    par = r.info["parallax_px"]
+    assert par > cfg.min_parallax_px  # the parallax test alone would reconstruct the drift
+    assert r.info["motion_px"] < cfg.fixed_motion * par and r.info["epipolar_px"] > cfg.fixed_epipolar * par
+    assert not r.ok and "hardly moves" in r.message and "drift" in r.message and (r.depth == 1).all()
+    # the same drift on a moving camera: reconstructed (its tracks move far more than their parallax)
+    X, c2w = _plane_scene()
+    moving = _drifting(_tracks_of(X, c2w)[0], 0.1)
+    r = sfm_depth(moving, np.ones(len(X), bool), K, masks[:len(c2w)], SfMConfig(verbose=False, min_angle_deg=0.5))
+    assert r.ok and r.info["motion_px"] > 4 * cfg.fixed_motion * r.info["parallax_px"]
+
+
+def test_sfm_reconstructs_an_orbit_whose_tracks_move_by_their_parallax():
+    # a camera circling a point it looks at: the points near that point hardly move, the rest by their parallax,
+    # as a fixed camera's drift does; the parallax of an orbit is a second view's, and it is reconstructed
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1.5, 1.5, (3000, 3)) * [1.0, 0.7, 1.0]
+    c2w = []
+    for t in range(16):
+        a = np.radians(0.6 * t)
+        centre = np.array([5 * np.sin(a), 0.0, -5 * np.cos(a)])
+        c2w.append(pose_from_rt(Rotation.from_rotvec([0, -a, 0]).as_matrix(), centre))
+    tr, z = _tracks_of(X, np.stack(c2w))
+    masks = np.zeros((16, 240, 320), bool)
+    cfg = SfMConfig(verbose=False, min_angle_deg=0.5)
+    r = sfm_depth(tr, np.ones(len(X), bool), K, masks, cfg)
+    assert r.info["motion_px"] < cfg.fixed_motion * r.info["parallax_px"]  # moves as a fixed camera's drift would
+    assert r.ok and r.info["epipolar_px"] < cfg.fixed_epipolar * r.info["parallax_px"]
+    x, y = (np.round(tr.tracks[:, 0, i]).astype(int).clip(0, n - 1) for i, n in ((0, 320), (1, 240)))
+    d, ok = r.depth[0][y, x], tr.visible[:, 0]
+    s = np.median(z[ok, 0] / d[ok])
+    assert np.median(np.abs(d[ok] * s - z[ok, 0]) / z[ok, 0]) < 0.05  # the depth, up to its scale (measured 0.0045)
+
+
 def test_push_pull_fills_holes_of_a_smooth_map():
     H, W = 60, 80
     ys, xs = np.mgrid[0:H, 0:W]

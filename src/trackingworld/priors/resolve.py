@@ -174,10 +174,15 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         def run_sfm():
             r = sfm_depth(tr, static_tracks(tr, masks), K, masks, scfg)
             return {"depth": r.depth, "ok": np.array(r.ok), "message": np.array(r.message),
-                    "parallax_px": np.array(r.info.get("parallax_px", 0.0))}
+                    "parallax_px": np.array(r.info.get("parallax_px", 0.0)),
+                    "motion_px": np.array(r.info.get("motion_px", np.nan)),
+                    "epipolar_px": np.array(r.info.get("epipolar_px", np.nan))}
 
         sfm = cached(path("depth_sfm"), key, run_sfm, "structure from motion", verbose)
-        info.sfm = {"ok": bool(sfm["ok"]), "parallax_px": float(sfm["parallax_px"])}
+        # the starting pair's residual parallax, its static tracks' motion and the essential matrix's median Sampson
+        # error there, px (None where SfM stopped before them: priors.sfm.reconstruct)
+        found = {k: float(sfm[k]) for k in ("parallax_px", "motion_px", "epipolar_px")}
+        info.sfm = {"ok": bool(sfm["ok"]), **{k: v if np.isfinite(v) else None for k, v in found.items()}}
         _say(info, str(sfm["message"]), verbose)
     if dsrc == "sfm":
         depth = sfm["depth"]
