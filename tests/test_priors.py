@@ -412,6 +412,22 @@ def test_focal_self_calibration_declines_without_translation():
     assert f is None and "reason" in info and info["skipped"]["homography"] > 0
 
 
+def test_focal_self_calibration_declines_a_fixed_camera_whose_tracks_drift():
+    from trackingworld.geometry import look_at
+    from trackingworld.priors.focal import FocalConfig, estimate_focal
+
+    tr, K = _tracks_of_points(50.0)
+    fixed = np.stack([look_at(np.zeros(3), np.array([0.5, 0, 8]))] * tr.tracks.shape[1])
+    pts = np.random.default_rng(0).uniform(-1, 1, (len(tr.tracks), 3)) * [4, 3, 4.5] + [0, 0, 7.5]
+    uv, z = project(transform(invert_pose(fixed)[None], pts[:, None]), K)
+    vis = (z > 0) & (uv[..., 0] > 0) & (uv[..., 0] < 320) & (uv[..., 1] > 0) & (uv[..., 1] < 240)
+    still = _drifting(TrackResult(uv.astype(np.float32), vis, np.ones(vis.shape, np.float32), tr.queries), 0.45)
+    f, info = estimate_focal(still, np.ones(len(pts), bool), (320, 240))
+    assert f is None and info["skipped"]["fixed"] > 0 and "a fixed camera" in info["reason"], info
+    # the drift alone is parallax enough for the homography and parallax tests
+    assert sum(info["skipped"].values()) - info["skipped"]["fixed"] < FocalConfig().min_pairs
+
+
 def test_a_batch_loads_its_depth_model_once(tiny_scene, tmp_path, tiny_depth_anything, monkeypatch):
     """Two videos with one depth model: the model is read once, and each video's prior is its own."""
     import shutil

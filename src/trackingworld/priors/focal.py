@@ -5,8 +5,10 @@ tracks. With the principal point at the image centre, square pixels and one foca
 matrix E = K(f)^T F K(f) must have two equal singular values; the cost (s1 - s2) / (s1 + s2) (Mendonca and
 Cipolla, 1999) is evaluated on a log-spaced grid of focal lengths, summed over pairs, and its minimum refined by
 a parabola. Pairs that a homography explains as well as F (pure rotation, a planar scene) carry no information
-and are skipped. When too few pairs remain or the cost has no clear minimum, the caller keeps its assumed field
-of view. This replaces the fixed 60 deg guess; the world-centric optimisation then runs with the estimate.
+and are skipped, and so are a fixed camera's pairs, whose parallax is its tracks' drift
+(:mod:`trackingworld.priors.drift`). When too few pairs remain or the cost has no clear minimum, the caller keeps
+its assumed field of view. This replaces the fixed 60 deg guess; the world-centric optimisation then runs with the
+estimate.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, looks_fixed, sampson_px
 from trackingworld.priors.motion_masks import fit_two_view, partner_frame
 from trackingworld.tracking2d.base import TrackResult
 
@@ -33,6 +36,11 @@ class FocalConfig:
     parallax_percentile: float = 90.0  # (a wall or floor filling the view lets a homography explain the median)
     homography_ratio: float = 0.9  # skip a pair when H's inliers >= this x F's
     max_depth_ratio: float = 0.6  # the minimum must be below this x the cost's median: else "no clear minimum"
+    # skip a pair whose tracks move less than fixed_motion x their median residual parallax and whose F leaves a
+    # median Sampson error of more than fixed_epipolar x it: a fixed camera's drift (priors.drift; pstudio.mp4's
+    # 150 frames gave a 120 deg field of view from it)
+    fixed_motion: float = FIXED_MOTION
+    fixed_epipolar: float = FIXED_EPIPOLAR
 
 
 def essential_cost(F: np.ndarray, focals: np.ndarray, cx: float, cy: float) -> np.ndarray:
@@ -59,7 +67,7 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
     focals = np.geomspace(lo, hi, cfg.grid)
     rng = np.random.default_rng(seed)
     starts = np.unique(np.linspace(0, T - 1, min(cfg.max_pairs, T)).round().astype(int))
-    costs, used, skipped = [], [], {"few_tracks": 0, "homography": 0, "parallax": 0, "fit": 0}
+    costs, used, skipped = [], [], {"few_tracks": 0, "homography": 0, "parallax": 0, "fit": 0, "fixed": 0}
     for a in starts:
         b = partner_frame(int(a), T, cfg.gap)
         both = np.flatnonzero(static & tr.visible[:, a] & tr.visible[:, b])
@@ -84,12 +92,20 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
             if np.percentile(resid, cfg.parallax_percentile) < cfg.min_parallax_px:
                 skipped["parallax"] += 1
                 continue
+            motion = float(np.median(np.linalg.norm(pb - pa, axis=1)))
+            if looks_fixed(motion, float(np.median(resid)), float(np.median(sampson_px(F, pa, pb))), cfg.fixed_motion,
+                           cfg.fixed_epipolar):
+                skipped["fixed"] += 1
+                continue
         c = essential_cost(F, focals, cx, cy)
         costs.append(c / max(np.median(c), 1e-12))  # each pair weighs the same
         used.append((int(a), int(b)))
     info: dict = {"pairs": len(used), "skipped": skipped}
     if len(used) < cfg.min_pairs:
         info["reason"] = f"only {len(used)} usable frame pairs (need {cfg.min_pairs})"
+        if skipped["fixed"] >= max(skipped.values()):
+            info["reason"] += (f": a fixed camera, the parallax of {skipped['fixed']} of {len(starts)} pairs is its "
+                               "tracks' drift")
         return None, info
     total = np.sum(costs, axis=0)
     i = int(np.argmin(total))

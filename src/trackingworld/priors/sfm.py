@@ -19,7 +19,7 @@ Python bindings match features themselves):
 The scale is arbitrary (the median depth is set to 1). When the camera hardly moves (no parallax), depth
 cannot be recovered from the video: a constant depth is returned with a message saying so. So it is for a fixed
 camera (a tripod), whose tracks' drift reads as parallax: where the static tracks of the starting pair move about
-as much as their parallax and no essential matrix explains it (``SfMConfig.fixed_motion``).
+as much as their parallax and no essential matrix explains it (:mod:`trackingworld.priors.drift`).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from trackingworld.config import SFM_CONTACTS, OptimConfig
 from trackingworld.geometry import focal_length, invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import cell_representatives
+from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, looks_fixed, sampson_px
 from trackingworld.priors.fill import densify
 from trackingworld.tracking2d.base import TrackResult
 
@@ -44,16 +45,10 @@ class SfMConfig:
     cell: int = 8  # one track per (query frame, cell) takes part in the incremental reconstruction
     max_points: int = 6000
     min_parallax_px: float = 2.0  # median residual parallax (after a homography) of the best pair, else "static"
-    # a fixed camera (a tripod): its tracks drift, which chained flow gathers over the frames, and the drift reads
-    # as parallax, the more the longer the video: the Panoptic Studio clip of ../shared/data (pstudio.mp4) 1.6 /
-    # 2.1 / 5.4 / 9.5 px over its first 24 / 40 / 80 / 150 frames, SfM's depth then noise. Such a pair is taken as
-    # "static" when its static tracks move less than fixed_motion x its parallax (a homography explains nothing of
-    # their motion: pstudio 0.9-1.0x, the hand-held dog.mp4 51x, the synthetic scenes' 30-frame windows 9-21x) and
-    # the essential matrix leaves a median Sampson error of more than fixed_epipolar x that parallax (the parallax
-    # is not a second view's: pstudio 0.30-0.47, the synthetic windows 0.01-0.12). An orbit about a point moves
-    # its tracks by about their parallax too, but its parallax is a second view's (stop 85)
-    fixed_motion: float = 2.0
-    fixed_epipolar: float = 0.2
+    # a pair whose tracks move less than fixed_motion x its parallax and whose essential matrix leaves more than
+    # fixed_epipolar x it is a fixed camera's drift (priors.drift), "static" too
+    fixed_motion: float = FIXED_MOTION
+    fixed_epipolar: float = FIXED_EPIPOLAR
     min_shared: int = 60
     reproj_px: float = 2.0  # inlier threshold of RANSAC, PnP and triangulation
     min_angle_deg: float = 1.0  # rays of a triangulated point must span this angle
@@ -89,18 +84,6 @@ def residual_parallax(pa: np.ndarray, pb: np.ndarray) -> float:
         return 0.0
     q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
     return float(np.median(np.linalg.norm(q - pb, axis=1)))
-
-
-def sampson_px(E: np.ndarray, K: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """Sampson distances ``[n]`` (px) of the matches ``pa -> pb [n,2]`` (px) under the essential matrix ``E`` of the
-    camera ``K``: the first-order distance of each pair from the nearest pair the two views explain."""
-    Ki = np.linalg.inv(K)
-    F = Ki.T @ E @ Ki
-    xa, xb = np.c_[pa, np.ones(len(pa))], np.c_[pb, np.ones(len(pb))]
-    Fa, Fb = xa @ F.T, xb @ F  # epipolar lines of pa in the second image, of pb in the first
-    num = (xb * Fa).sum(1) ** 2
-    den = Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Fb[:, 0] ** 2 + Fb[:, 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-30))
 
 
 def choose_pair(uv: np.ndarray, vis: np.ndarray, cfg: SfMConfig) -> tuple[int, int, float]:
@@ -250,9 +233,10 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
         return None, info
     E = E[:3]
     info["motion_px"] = float(np.median(np.linalg.norm(u[both, b] - u[both, a], axis=1)))
-    info["epipolar_px"] = float(np.median(sampson_px(E, K, u[both, a], u[both, b])))
-    if info["motion_px"] < cfg.fixed_motion * par and info["epipolar_px"] > cfg.fixed_epipolar * par:
-        info["fixed"] = True  # the parallax is a fixed camera's drift (SfMConfig.fixed_motion)
+    Ki = np.linalg.inv(K)
+    info["epipolar_px"] = float(np.median(sampson_px(Ki.T @ E @ Ki, u[both, a], u[both, b])))
+    if looks_fixed(info["motion_px"], par, info["epipolar_px"], cfg.fixed_motion, cfg.fixed_epipolar):
+        info["fixed"] = True  # the parallax is a fixed camera's drift
         return None, info
     _, Rb, tb, _ = cv2.recoverPose(E, u[both, a], u[both, b], K, mask=m)
     R = np.full((T, 3, 3), np.nan)
