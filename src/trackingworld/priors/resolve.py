@@ -180,8 +180,8 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
 
         sfm = cached(path("depth_sfm"), key, run_sfm, "structure from motion", verbose)
         # the starting pair's residual parallax, its static tracks' motion and the essential matrix's median Sampson
-        # error there, px (None where SfM stopped before them: priors.sfm.reconstruct)
-        found = {k: float(sfm[k]) for k in ("parallax_px", "motion_px", "epipolar_px")}
+        # error there, px (None where SfM stopped before them, priors.sfm.reconstruct, or a cache file lacks them)
+        found = {k: float(sfm.get(k, np.nan)) for k in ("parallax_px", "motion_px", "epipolar_px")}
         info.sfm = {"ok": bool(sfm["ok"]), **{k: v if np.isfinite(v) else None for k, v in found.items()}}
         _say(info, str(sfm["message"]), verbose)
     if dsrc == "sfm":
