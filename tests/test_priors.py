@@ -1,6 +1,7 @@
 """Priors: weight-free masks and depth from the video, model adapters on tiny random models, caching."""
 
 import json
+import re
 import sys
 import types
 
@@ -70,6 +71,15 @@ def test_sfm_without_parallax_says_so_and_returns_constant_depth():
     r = sfm_depth(tr, np.ones(len(X), bool), K, np.zeros((8, 240, 320), bool), SfMConfig(verbose=False))
     assert not r.ok and "hardly moves" in r.message
     assert (r.depth == 1).all() and np.allclose(r.poses_c2w, np.eye(4))
+
+
+def test_sfm_with_too_few_static_tracks_says_so_not_that_the_camera_is_still():
+    X, c2w = _plane_scene(N=40)  # a moving camera, but 40 static tracks: fewer than SfMConfig.min_shared
+    tr, _ = _tracks_of(X, c2w)
+    r = sfm_depth(tr, np.ones(len(X), bool), K, np.zeros((len(c2w), 240, 320), bool), SfMConfig(verbose=False))
+    assert not r.ok and (r.depth == 1).all()
+    assert re.search(r"structure from motion failed \(only \d+ static tracks", r.message), r.message
+    assert "hardly moves" not in r.message
 
 
 def _drifting(tr: TrackResult, step_px: float, seed: int = 1) -> TrackResult:

@@ -63,7 +63,7 @@ class SfMConfig:
 class SfMResult:
     depth: np.ndarray  # [T,H,W] float32, median 1 (arbitrary scale)
     poses_c2w: np.ndarray  # [T,4,4]
-    ok: bool  # False: no parallax, depth is constant
+    ok: bool  # False: no parallax (or SfM failed: info["failed"] says why), depth is constant
     message: str
     info: dict = field(default_factory=dict)
 
@@ -223,6 +223,9 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
     a, b, par = choose_pair(u, v, cfg)
     both = np.flatnonzero(v[:, a] & v[:, b])
     info = {"pair": [a, b], "parallax_px": par, "points": int(len(idx))}
+    if len(both) < cfg.min_shared:  # no pair of frames shares enough static tracks (choose_pair found none)
+        info["failed"] = f"only {len(idx)} static tracks, {len(both)} of them seen in both frames {a} and {b}"
+        return None, info
     if par < cfg.min_parallax_px:
         return None, info
     try:
@@ -230,6 +233,7 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
     except cv2.error:
         E = None
     if E is None:
+        info["failed"] = f"no essential matrix fits frames {a} and {b}"
         return None, info
     E = E[:3]
     info["motion_px"] = float(np.median(np.linalg.norm(u[both, b] - u[both, a], axis=1)))
@@ -265,6 +269,7 @@ def reconstruct(tr: TrackResult, static: np.ndarray, K: np.ndarray, cfg: SfMConf
         retriangulate()
     info["registered"] = int(reg.sum())
     if has3d.sum() < 30:
+        info["failed"] = f"only {int(has3d.sum())} static tracks triangulated over {int(reg.sum())} frames (need 30)"
         return None, info
     Rr, tr_, _, costs = _bundle_adjust(R[reg], t[reg], X[has3d], u[has3d][:, reg], v[has3d][:, reg], K,
                                        int(np.flatnonzero(np.flatnonzero(reg) == a)[0]), cfg)
@@ -361,13 +366,16 @@ def sfm_depth(tr: TrackResult, static: np.ndarray, K: np.ndarray, masks: np.ndar
     rec, info = reconstruct(tr, static, K, cfg)
     if rec is None:
         a, b = info["pair"]
-        if info.get("fixed"):
-            why = (f"its static tracks move {info['motion_px']:.1f} px from frame {a} to frame {b}, no more than their "
-                   f"{info['parallax_px']:.1f} px of parallax, which no second view explains: a fixed camera's drift")
+        if "failed" in info:
+            why = f"structure from motion failed ({info['failed']})"
+        elif info.get("fixed"):
+            why = (f"the camera hardly moves (its static tracks move {info['motion_px']:.1f} px from frame {a} to "
+                   f"frame {b}, no more than their {info['parallax_px']:.1f} px of parallax, which no second view "
+                   "explains: a fixed camera's drift)")
         else:
-            why = f"parallax {info['parallax_px']:.1f} px between the best pair of frames, {a} and {b}"
-        msg = (f"the camera hardly moves ({why}): depth cannot be recovered from the video, using a constant depth "
-               "(scale arbitrary); give --depth FILE or a depth model for 3D structure")
+            why = f"the camera hardly moves (parallax {info['parallax_px']:.1f} px between the best pair of frames)"
+        msg = (f"{why}: depth cannot be recovered from the video, using a constant depth (scale arbitrary); give "
+               "--depth FILE or a depth model for 3D structure")
         _log(cfg, msg)
         return SfMResult(np.ones((T, H, W), np.float32), np.tile(np.eye(4), (T, 1, 1)), False, msg, info)
     R, t, reg = rec
