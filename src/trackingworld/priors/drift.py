@@ -17,7 +17,7 @@ it. Two things tell such a pair of frames from a moving camera's:
   synthetic windows and 0.04x on an orbit (``tests/test_priors.py``). Alone this test would not do: dog.mp4's pair
   leaves 0.43x, its parallax smeared by the grass's drift, but its tracks move 51x their parallax.
 
-Both measured at stop 85 (``docs/results.md``).
+Both measured at stop 85 (``docs/priors.md``, "Stop 85").
 """
 
 from __future__ import annotations

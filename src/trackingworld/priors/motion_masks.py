@@ -34,7 +34,7 @@ class MotionMaskConfig:
     noise_mult: float = 4.0  # threshold = max(min_px, noise_mult * robust sigma of the inliers)
     # use H when its inliers reach this share of F's. The inlier share of H over F's tells a camera that moves
     # (stop 85: 0.25-0.79 over the pairs of seeds 0 and 2's 30- and 120-frame videos of bench_scaling.py, 0.52-0.71
-    # on dog.mp4) from one that does not translate (0.86-0.96 on seed 0 rendered with a fixed camera, 120 frames;
+    # on dog.mp4) from one that does not travel (0.86-0.96 on seed 0's 120 frames with cam_speed and cam_turn_deg 0;
     # 0.84-0.91 on sheep.mp4's pan); with 0.95 F took the fixed camera's pairs and explained its movers: the masks'
     # IoU 0.324, recall 0.405, against 0.645 / 0.970 with 0.82 (docs/priors.md). ORB-SLAM's initialisation draws the
     # line at about the same place (H when its score is 0.45 of the two's sum, 0.82 of F's)
