@@ -30,12 +30,13 @@ FIXED_EPIPOLAR = 0.2  # ... and a second view leaves more than this x the parall
 
 def sampson_px(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     """Sampson distances ``[n]`` (px) of the matches ``pa -> pb [n,2]`` (px) under the fundamental matrix ``F``
-    (``pb^T F pa = 0``): each pair's first-order distance from the nearest pair the two views explain."""
+    (``pb^T F pa = 0``): each pair's first-order distance from the nearest pair the two views explain (the motion
+    masks' residual, :mod:`trackingworld.priors.motion_masks`)."""
     xa, xb = np.c_[pa, np.ones(len(pa))], np.c_[pb, np.ones(len(pb))]
     Fa, Fb = xa @ F.T, xb @ F  # the epipolar lines of pa in the second image, of pb in the first
-    num = (xb * Fa).sum(1) ** 2
-    den = Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Fb[:, 0] ** 2 + Fb[:, 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-30))
+    num = np.abs((xb * Fa).sum(1))
+    den = np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Fb[:, 0] ** 2 + Fb[:, 1] ** 2)
+    return num / np.maximum(den, 1e-12)
 
 
 def looks_fixed(motion_px: float, parallax_px: float, epipolar_px: float, fixed_motion: float = FIXED_MOTION,
@@ -44,3 +45,13 @@ def looks_fixed(motion_px: float, parallax_px: float, epipolar_px: float, fixed_
     residual parallax after a homography ``parallax_px`` and the median Sampson error of the epipolar geometry
     fitted to them ``epipolar_px`` (px; see the module docstring)."""
     return motion_px < fixed_motion * parallax_px and epipolar_px > fixed_epipolar * parallax_px
+
+
+def pair_looks_fixed(pa: np.ndarray, pb: np.ndarray, F: np.ndarray, transfer_px: np.ndarray,
+                     fixed_motion: float = FIXED_MOTION, fixed_epipolar: float = FIXED_EPIPOLAR) -> bool:
+    """:func:`looks_fixed` of the matches ``pa -> pb [n,2]`` (px), given the fundamental matrix ``F`` fitted to them
+    and a homography's transfer errors ``transfer_px [n]`` (px) on them: the medians of their motion, of those
+    errors and of their Sampson distances."""
+    pa, pb = pa.astype(np.float64), pb.astype(np.float64)
+    return looks_fixed(float(np.median(np.linalg.norm(pb - pa, axis=1))), float(np.median(transfer_px)),
+                       float(np.median(sampson_px(F, pa, pb))), fixed_motion, fixed_epipolar)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, looks_fixed, sampson_px
+from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, pair_looks_fixed
 from trackingworld.priors.motion_masks import fit_two_view, partner_frame
 from trackingworld.tracking2d.base import TrackResult
 
@@ -92,9 +92,7 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
             if np.percentile(resid, cfg.parallax_percentile) < cfg.min_parallax_px:
                 skipped["parallax"] += 1
                 continue
-            motion = float(np.median(np.linalg.norm(pb - pa, axis=1)))
-            if looks_fixed(motion, float(np.median(resid)), float(np.median(sampson_px(F, pa, pb))), cfg.fixed_motion,
-                           cfg.fixed_epipolar):
+            if pair_looks_fixed(pa, pb, F, resid, cfg.fixed_motion, cfg.fixed_epipolar):
                 skipped["fixed"] += 1
                 continue
         c = essential_cost(F, focals, cx, cy)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.ndimage import binary_fill_holes
 
 from trackingworld.optim.densify import cell_representatives
-from trackingworld.priors.drift import looks_fixed, sampson_px
+from trackingworld.priors.drift import pair_looks_fixed, sampson_px
 from trackingworld.priors.fill import splat
 from trackingworld.tracking2d.base import TrackResult
 
@@ -77,33 +77,22 @@ def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: Motion
     n_f, n_h = int(inl_f.sum()), int(inl_h.sum())
     if n_f == 0 and n_h == 0:
         return None
-    if n_h >= cfg.homography_ratio * n_f or (Hm is not None and _fixed(pa[fit], pb[fit], F, Hm)):
-        q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
-        r = np.linalg.norm(q - pb, axis=1)  # transfer error, px
-        inl = inl_h
+    use_h = Hm is not None and n_h >= cfg.homography_ratio * n_f  # a camera that does not travel
+    if not use_h and Hm is not None and F is not None:  # a fixed camera's drift, which neither model explains
+        # (pstudio.mp4, where H's inliers are 0.71-0.79 of F's: priors.drift)
+        use_h = pair_looks_fixed(pa[fit], pb[fit], F, _transfer_px(pa[fit], pb[fit], Hm))
+    if use_h:
+        r, inl = _transfer_px(pa, pb, Hm), inl_h
     else:
-        ha = np.concatenate([pa, np.ones((len(pa), 1))], 1)
-        hb = np.concatenate([pb, np.ones((len(pb), 1))], 1)
-        Fa, Ftb = ha @ F.T, hb @ F
-        num = np.abs((hb * Fa).sum(1))
-        den = np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2)
-        r = num / np.maximum(den, 1e-12)  # Sampson distance, px
-        inl = inl_f
+        r, inl = sampson_px(F, pa, pb), inl_f
     sigma = 1.4826 * np.median(r[fit][inl]) if inl.any() else cfg.min_px
     return r, max(cfg.min_px, cfg.noise_mult * sigma)
 
 
-def _fixed(pa: np.ndarray, pb: np.ndarray, F: np.ndarray | None, Hm: np.ndarray) -> bool:
-    """Whether the correspondences ``pa -> pb [M,2]`` (px) are a fixed camera's whose tracks drift
-    (:func:`trackingworld.priors.drift.looks_fixed`, with the homography ``Hm``'s median transfer error as the
-    parallax and ``F``'s median Sampson distance): pstudio.mp4's pairs, whose drift neither model explains, where
-    H's inliers are 0.71-0.79 of F's."""
-    if F is None:
-        return False
-    pa, pb = pa.astype(np.float64), pb.astype(np.float64)
-    q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2), Hm).reshape(-1, 2)
-    par = float(np.median(np.linalg.norm(q - pb, axis=1)))
-    return looks_fixed(float(np.median(np.linalg.norm(pb - pa, axis=1))), par, float(np.median(sampson_px(F, pa, pb))))
+def _transfer_px(pa: np.ndarray, pb: np.ndarray, Hm: np.ndarray) -> np.ndarray:
+    """Transfer errors ``[M]`` (px) of the correspondences ``pa -> pb [M,2]`` under the homography ``Hm``."""
+    q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
+    return np.linalg.norm(q - pb, axis=1)
 
 
 def partner_frame(t: int, T: int, gap: int) -> int:
