@@ -22,10 +22,17 @@ Both measured at stop 85 (``docs/priors.md``, "Stop 85").
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 FIXED_MOTION = 2.0  # the tracks move less than this x their parallax ...
 FIXED_EPIPOLAR = 0.2  # ... and a second view leaves more than this x the parallax: a fixed camera's drift
+
+
+def transfer_px(pa: np.ndarray, pb: np.ndarray, Hm: np.ndarray) -> np.ndarray:
+    """Transfer errors ``[n]`` (px) of the matches ``pa -> pb [n,2]`` (px) under the homography ``Hm``."""
+    q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
+    return np.linalg.norm(q - pb, axis=1)
 
 
 def sampson_px(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:

@@ -15,10 +15,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, pair_looks_fixed
+from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, pair_looks_fixed, transfer_px
 from trackingworld.priors.motion_masks import fit_two_view, partner_frame
 from trackingworld.tracking2d.base import TrackResult
 
@@ -88,7 +87,7 @@ def estimate_focal(tr: TrackResult, static: np.ndarray, size: tuple[int, int], c
             if int(inl_h.sum()) >= cfg.homography_ratio * n_f:
                 skipped["homography"] += 1
                 continue
-            resid = np.linalg.norm(cv2.perspectiveTransform(pa[None], Hm)[0] - pb, axis=1)
+            resid = transfer_px(pa, pb, Hm)
             if np.percentile(resid, cfg.parallax_percentile) < cfg.min_parallax_px:
                 skipped["parallax"] += 1
                 continue

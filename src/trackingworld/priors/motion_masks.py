@@ -22,7 +22,7 @@ import numpy as np
 from scipy.ndimage import binary_fill_holes
 
 from trackingworld.optim.densify import cell_representatives
-from trackingworld.priors.drift import pair_looks_fixed, sampson_px
+from trackingworld.priors.drift import pair_looks_fixed, sampson_px, transfer_px
 from trackingworld.priors.fill import splat
 from trackingworld.tracking2d.base import TrackResult
 
@@ -80,19 +80,13 @@ def _pair_residuals(pa: np.ndarray, pb: np.ndarray, fit: np.ndarray, cfg: Motion
     use_h = Hm is not None and n_h >= cfg.homography_ratio * n_f  # a camera that does not travel
     if not use_h and Hm is not None and F is not None:  # a fixed camera's drift, which neither model explains
         # (pstudio.mp4, where H's inliers are 0.71-0.79 of F's: priors.drift)
-        use_h = pair_looks_fixed(pa[fit], pb[fit], F, _transfer_px(pa[fit], pb[fit], Hm))
+        use_h = pair_looks_fixed(pa[fit], pb[fit], F, transfer_px(pa[fit], pb[fit], Hm))
     if use_h:
-        r, inl = _transfer_px(pa, pb, Hm), inl_h
+        r, inl = transfer_px(pa, pb, Hm), inl_h
     else:
         r, inl = sampson_px(F, pa, pb), inl_f
     sigma = 1.4826 * np.median(r[fit][inl]) if inl.any() else cfg.min_px
     return r, max(cfg.min_px, cfg.noise_mult * sigma)
-
-
-def _transfer_px(pa: np.ndarray, pb: np.ndarray, Hm: np.ndarray) -> np.ndarray:
-    """Transfer errors ``[M]`` (px) of the correspondences ``pa -> pb [M,2]`` under the homography ``Hm``."""
-    q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
-    return np.linalg.norm(q - pb, axis=1)
 
 
 def partner_frame(t: int, T: int, gap: int) -> int:

@@ -35,7 +35,7 @@ from trackingworld.config import SFM_CONTACTS, OptimConfig
 from trackingworld.geometry import focal_length, invert_pose, pose_from_rt, project, transform, unproject
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import cell_representatives
-from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, looks_fixed, sampson_px
+from trackingworld.priors.drift import FIXED_EPIPOLAR, FIXED_MOTION, looks_fixed, sampson_px, transfer_px
 from trackingworld.priors.fill import densify
 from trackingworld.tracking2d.base import TrackResult
 
@@ -82,8 +82,7 @@ def residual_parallax(pa: np.ndarray, pb: np.ndarray) -> float:
         Hm = None
     if Hm is None:
         return 0.0
-    q = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), Hm).reshape(-1, 2)
-    return float(np.median(np.linalg.norm(q - pb, axis=1)))
+    return float(np.median(transfer_px(pa, pb, Hm)))
 
 
 def choose_pair(uv: np.ndarray, vis: np.ndarray, cfg: SfMConfig) -> tuple[int, int, float]:
