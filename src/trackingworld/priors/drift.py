@@ -17,7 +17,9 @@ it. Two things tell such a pair of frames from a moving camera's:
   synthetic windows and 0.04x on an orbit (``tests/test_priors.py``). Alone this test would not do: dog.mp4's pair
   leaves 0.43x, its parallax smeared by the grass's drift, but its tracks move 51x their parallax.
 
-Both measured at stop 85 (``docs/priors.md``, "Stop 85").
+Both measured at stop 85 (``docs/priors.md``, "Stop 85"). The two residuals the tests read are the weight-free
+priors' own, shared by SfM, self-calibration and the motion masks: a homography's transfer error
+(:func:`transfer_px`) and a fundamental matrix's Sampson distance (:func:`sampson_px`).
 """
 
 from __future__ import annotations
