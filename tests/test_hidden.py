@@ -213,3 +213,22 @@ def test_a_track_seen_once_takes_the_velocity_of_its_nearest_tracks_in_3d():
     vis_t = np.ones((1, 42), bool)
     _impute_velocity(vel, known, pos, vis_t)
     assert np.allclose(vel[0, 40], [3.0, 0.0]) and np.allclose(vel[0, 41], [-2.0, 1.0])
+
+
+def test_carrying_in_place_and_by_rows_gives_the_numbers_of_copies():
+    # the pipeline's carrying writes its own positions in place and reads the pixels of the dynamic rows of the
+    # whole [N,T,2] array (on a long video each copy is gigabytes): the same numbers as copies
+    xyz, rng = _moving_cloud(N=80, T=10, seed=3)
+    xyz = xyz.astype(np.float32)
+    vis = rng.random(xyz.shape[:2]) > 0.3
+    vis[:, 0] = True
+    uv = _project(xyz).astype(np.float32)
+    others = (_project(xyz + 1.0) + 7.0).astype(np.float32)  # rows the carrying must not read
+    whole = np.concatenate([others[:20], uv, others[20:]])
+    rows = np.arange(20, 100)
+    ref = carry_hidden(xyz, vis, k=8, uv=uv, motion_scale=0.1)
+    mine = xyz.copy()
+    out = carry_hidden(mine, vis, k=8, uv=whole, rows=rows, motion_scale=0.1, overwrite=True)
+    assert out is mine and np.array_equal(out, ref)
+    assert not np.array_equal(ref, carry_hidden(xyz, vis, k=8, uv=whole[:80], motion_scale=0.1))  # rows are read
+

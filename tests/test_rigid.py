@@ -357,3 +357,17 @@ def test_a_negative_split_gap_is_refused_in_one_line():
 
     with pytest.raises(InputError, match="rigid_split_gap -0.1: a fraction of the depth"):
         check_optim(OptimConfig(rigid_split_gap=-0.1))
+
+
+def test_float32_tracks_give_the_numbers_of_their_float64_copies():
+    # the pipeline hands the step its float32 pixels and positions (20 bytes an observation less than float64
+    # copies): every computation reads them in float64, so the result is that of the same values in float64
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    uv32 = uv.astype(np.float32)
+    start32 = _lift(uv, z * 1.05, poses, K).astype(np.float32)
+    out64, g64, m64, i64 = rigid_movers(uv32.astype(np.float64), vis, z * 1.05, start32.astype(np.float64), poses, K,
+                                        qf, OptimConfig(), RigidSettings())
+    out32, g32, m32, i32 = rigid_movers(uv32, vis, z * 1.05, start32, poses, K, qf, OptimConfig(), RigidSettings())
+    assert i64["rigid_groups"] >= 1 and i32 == i64
+    assert np.array_equal(g32, g64) and np.array_equal(m32, m64, equal_nan=True)
+    assert out32.dtype == np.float32 and np.array_equal(out32, out64.astype(np.float32))

@@ -71,25 +71,33 @@ def searched_gaps(T: int, dense: int = DENSE_GAPS, ratio: float = GAP_RATIO) -> 
         out.append(int(round(g)))
 
 
-def image_velocity(uv: np.ndarray, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def image_velocity(uv: np.ndarray, vis: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each track's 2D velocity at each frame where it and a neighbouring frame are visible, ``[T,N,2]`` float32 px
     per frame (frames first, the layout of the carrying's searches): to the previous frame, else from the next;
-    and ``[T,N]`` bool where it is known (elsewhere 0). ``uv [N,T,2]`` px, ``vis [N,T]``."""
+    and ``[T,N]`` bool where it is known (elsewhere 0). ``uv [M,T,2]`` px (``rows [N]``: the tracks are those rows;
+    None: all, M = N), ``vis [N,T]``. Frame by frame: no ``[T,N,2]`` array beside the result (the carrying's peak
+    on a long video)."""
     N, T = vis.shape
-    p = np.ascontiguousarray(uv.transpose(1, 0, 2), dtype=np.float32)  # [T,N,2]
     seen = np.ascontiguousarray(vis.T)
     vel = np.zeros((T, N, 2), np.float32)
-    if T < 2:
-        return vel, np.zeros((T, N), bool)
-    step = p[1:] - p[:-1]  # [T-1,N,2] from frame t to t + 1
-    pair = seen[1:] & seen[:-1]
-    back = np.zeros((T, N), bool)  # visible with the previous frame
-    back[1:] = pair
-    fwd = np.zeros((T, N), bool)  # ... else with the next one
-    fwd[:-1] = pair & ~back[:-1]
-    vel[1:] = np.where(back[1:, :, None], step, np.float32(0))
-    vel[:-1] += np.where(fwd[:-1, :, None], step, np.float32(0))  # fwd and back never both hold
-    return vel, back | fwd
+    known = np.zeros((T, N), bool)
+
+    def pixels(t):
+        return np.asarray(uv[:, t] if rows is None else uv[rows, t], np.float32)
+
+    back = np.zeros(N, bool)  # visible at the frame before with the one before that
+    after = pixels(0) if T > 1 else None
+    for t in range(1, T):
+        before, after = after, pixels(t)
+        step = after - before  # [N,2] from frame t - 1 to t
+        pair = seen[t] & seen[t - 1]
+        vel[t] = np.where(pair[:, None], step, np.float32(0))  # to the previous frame
+        fwd = pair & ~back  # frame t - 1: else from the next one (never both)
+        vel[t - 1] += np.where(fwd[:, None], step, np.float32(0))
+        known[t] |= pair
+        known[t - 1] |= fwd
+        back = pair
+    return vel, known
 
 
 def _impute_velocity(vel: np.ndarray, known: np.ndarray, pos: np.ndarray, vis_t: np.ndarray, k: int = 4) -> None:
@@ -150,7 +158,8 @@ def donor_step(at_s: np.ndarray, at_t: np.ndarray, donors: np.ndarray, i: np.nda
 
 def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.3,
                  max_donors: int = MAX_DONORS, threads: int | None = None, uv: np.ndarray | None = None,
-                 motion_scale: float = 0.0, stat: str = "median") -> np.ndarray:
+                 motion_scale: float = 0.0, stat: str = "median", rows: np.ndarray | None = None,
+                 overwrite: bool = False) -> np.ndarray:
     """Tracks ``xyz [N,T,3]`` (world metres; only the visible frames ``vis [N,T]`` are read) with every hidden
     frame carried by its donors' motion (module docstring: ``k`` donors, ``reach`` metres, their steps combined
     by ``stat``, one of CARRY_STATS). The donors are
@@ -159,21 +168,28 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     video are searched from every anchor; where no searched frame follows in the same run of hidden frames, the
     step of the one before). Tracks never visible are returned as given. The searches run on ``threads``
     threads (None: ``optim.parallel.worker_threads``); the result does not depend on it. ``uv [N,T,2]`` (px) with
-    ``motion_scale`` > 0 (metres per px per frame): donors searched with the image motion too (module docstring).
-    Returns a new ``[N,T,3]`` array of xyz's dtype."""
+    ``motion_scale`` > 0 (metres per px per frame): donors searched with the image motion too (module docstring);
+    ``rows [N]``: the tracks are those rows of ``uv [M,T,2]`` (not copied out). Returns a new ``[N,T,3]`` array of
+    xyz's dtype, or with ``overwrite`` ``xyz`` itself, written in place (one ``[N,T,3]`` array fewer at the peak)."""
     if stat not in CARRY_STATS:
         raise ValueError(f"stat: {stat!r} is not {' or '.join(CARRY_STATS)}")
     N, T = vis.shape
     src = nearest_visible_frame(vis)  # [N,T]
-    out = np.take_along_axis(xyz, src[..., None], axis=1)  # held at the nearest visible frame, carried below
+    if overwrite:  # held at the nearest visible frame (carried below), a chunk of tracks at a time
+        out = xyz
+        for a in range(0, N, CHUNK):
+            out[a:a + CHUNK] = np.take_along_axis(xyz[a:a + CHUNK], src[a:a + CHUNK, :, None], axis=1)
+    else:
+        out = np.take_along_axis(xyz, src[..., None], axis=1)
     if T < 2:
         return out
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]
-    pos = np.ascontiguousarray(xyz.transpose(1, 0, 2), dtype=np.float32)  # [T,N,3]; per pair in float64 below
+    # [T,N,3], per pair in float64 below; read at the visible frames only, where ``out`` is still ``xyz``
+    pos = np.ascontiguousarray(out.transpose(1, 0, 2), dtype=np.float32)
     seen = vis.any(1)
     motion = None  # [T,N,2] metres: every visible track's scaled image velocity (known or imputed)
     if uv is not None and motion_scale > 0:
-        motion, known = image_velocity(uv, vis)
+        motion, known = image_velocity(uv, vis, rows)
         _impute_velocity(motion, known, pos, vis_t)
         motion *= np.float32(motion_scale)
     gaps = searched_gaps(T)

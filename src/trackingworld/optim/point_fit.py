@@ -175,8 +175,8 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
                   kernel_focal: float | None = None, iters: int = 6, rows: np.ndarray | None = None,
                   frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tracks ``rows [n]`` (None: all) each fitted as one point under fixed poses ``R [F,3,3]``, ``t [F,3]``
-    (camera = R X + t) of the frames ``frames [F]`` (None: all) from their pixels ``uv [N,T,2]`` and depth targets
-    ``depth [N,T]`` (metres) where ``vis [N,T]`` sees them: ``iters`` Gauss-Newton steps of
+    (camera = R X + t) of the frames ``frames [F]`` (None: all) from their pixels ``uv [N,T,2]`` (float32 or
+    float64) and depth targets ``depth [N,T]`` (metres) where ``vis [N,T]`` sees them: ``iters`` Gauss-Newton steps of
     :func:`trackingworld.optim.stage2.fit_points` (``weights`` = the objective's lambda_ba, lambda_dc,
     lambda_asap; ``offsets``, ``log_dc`` and ``kernel_focal`` as in :class:`trackingworld.optim.stage2.BAProblem`).
     Returns (the points ``[n,3]``; the median and 80th percentile ``[n,2]`` px of their reprojection errors over
@@ -184,7 +184,10 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
     for a track seen in none)."""
     rows = i64(np.arange(len(vis)) if rows is None else rows)
     frames = np.arange(vis.shape[1]) if frames is None else frames
-    args = (f64(R), f64(t), camera_constants(K, kernel_focal), f64(uv), f64(depth), np.ascontiguousarray(vis, np.bool_))
+    # float32 pixels are read as they are (a second compiled signature): every sum they enter has a float64 term, so
+    # the numbers are those of a float64 copy, which for the rigid step's [N,T,2] would be 16 bytes an observation
+    px = np.ascontiguousarray(uv) if uv.dtype == np.float32 else f64(uv)
+    args = (f64(R), f64(t), camera_constants(K, kernel_focal), px, f64(depth), np.ascontiguousarray(vis, np.bool_))
     rest = (i64(frames), f64(weights), bool(offsets), bool(log_dc), int(iters))
     # the tracks in parts on parallel threads: each one's fit is its own
     parts = in_parts(lambda lo, hi: _fit_and_score(*args, rows[lo:hi], *rest),

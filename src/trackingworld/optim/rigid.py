@@ -272,7 +272,9 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     across a gap are one object; NaN in the frames its motion is not solved in; the object frame is the camera frame
     at the frame its first group's fit was referred to) and counts. ``into``: called once the
     groups are found, the ``[N,T,3]`` array the groups' positions are written into and returned (None: a copy of
-    ``xyz``); ``xyz`` is read only at the visible frames and the query frames."""
+    ``xyz``); ``xyz`` is read only at the visible frames and the query frames. ``uv`` and ``xyz`` may be float32
+    (the pipeline's, 20 bytes an observation less than float64 copies): every computation reads them in float64
+    (a subset cast, or a float64 term beside them), so the numbers are those of float64 inputs."""
     N, T = vis.shape
     target = np.ascontiguousarray(target, np.float64)  # once, not at each membership test (optim.point_fit)
     z = camera_depths(xyz, poses)
@@ -314,7 +316,8 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     def refit(members, iters=None, draws=None):
         """The rigid motion of the tracks ``members`` (:func:`fit_motion`; ``iters`` None: the full fit; ``draws``
         the generator of its draw, None: the search's)."""
-        return fit_motion(uv[members], vis[members], target[members], xyz[members], poses, K, cfg, s,
+        return fit_motion(uv[members].astype(np.float64), vis[members], target[members],
+                          xyz[members].astype(np.float64), poses, K, cfg, s,
                           rng if draws is None else draws, dtype, device, iters,
                           None if keys is None else keys[members])
 
@@ -328,7 +331,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         t = int(qf[i])
         pool = np.flatnonzero(left & vis[:, t])
         pool = pool[_log_ratio(z[pool, t], z[i, t]) <= s.depth_tol]
-        near = pool[np.argsort(np.linalg.norm(uv[pool, t] - uv[i, t], axis=1))[: s.seed_tracks]]
+        near = pool[np.argsort(np.linalg.norm(uv[pool, t].astype(np.float64) - uv[i, t], axis=1))[: s.seed_tracks]]
         members = near
         for _round in range(s.rounds):
             motion = refit(members, s.round_iters)

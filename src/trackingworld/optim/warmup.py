@@ -33,7 +33,8 @@ def warm() -> float:
     depth = np.full((N, T), 3.0)
     vis = np.ones((N, T), bool)
     weights = (1.0, 1.0, 5.0)
-    point_fit.fit_and_score(R, t, K, uv, depth, vis, weights, rows=np.arange(N), frames=np.arange(T))
+    for pixels in (uv, uv.astype(np.float64)):  # the rigid step's float32 pixels, and float64
+        point_fit.fit_and_score(R, t, K, pixels, depth, vis, weights, rows=np.arange(N), frames=np.arange(T))
     pt, fr = np.nonzero(vis)
     X = rng.standard_normal((N, 3))
     blocks = ba_blocks.linearize(R, t, X, pt, fr, uv[pt, fr], depth[pt, fr], K, weights)

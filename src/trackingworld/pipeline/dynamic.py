@@ -61,11 +61,11 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
         few = dyn[:: max(1, len(dyn) // 4000)]
         z = D3[few][vis[few]]
         scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
-        vis_d, uv_d = vis[dyn], uv[dyn]
+        vis_d = vis[dyn]
 
-        def carry():
-            return carry_hidden(moved, vis_d, cfg.carry_k, cfg.carry_reach, uv=uv_d, motion_scale=scale,
-                                stat=cfg.carry_stat)
+        def carry():  # moved is this function's own copy: written in place (uv, read by rows, is not written)
+            return carry_hidden(moved, vis_d, cfg.carry_k, cfg.carry_reach, uv=uv, rows=dyn, motion_scale=scale,
+                                stat=cfg.carry_stat, overwrite=True)
 
         if defer_carry and worker_threads() > 1 and can_defer_carry(vis_d, qf[dyn]):  # one thread: one at a time
             xyz[dyn] = moved  # the visible frames, which the rigid step reads
@@ -112,7 +112,7 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
             if beside is not None:
                 pool.submit(beside)
             xyz[dyn], groups, motions, counts = rigid_movers(
-                uv[dyn].astype(np.float64), vis[dyn], target, xyz[dyn].astype(np.float64), poses.astype(np.float64),
+                uv[dyn], vis[dyn], target, xyz[dyn], poses.astype(np.float64),
                 K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device, size, into)
     finally:
         if pool is not None:
