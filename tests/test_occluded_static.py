@@ -93,6 +93,13 @@ def test_occlusion_rescue_updates_labels_points_and_tracks():
     dyn = np.array([True, True, True, False])
     same = occlusion_rescue(uv, vis, qf, depth, poses, K, OptimConfig(occluded_static_frames=0), dyn, xyz, {})
     assert same[0] is uv and same[1] is vis and len(same[2]) == 0 and dyn[:3].all()
+    # in place (the pipeline's own copies): the same tracks written into the given arrays
+    mine_uv, mine_vis = uv.copy(), vis.copy()
+    own = occlusion_rescue(mine_uv, mine_vis, qf, depth, poses, K, OptimConfig(), np.array([True, True, True, False]),
+                           np.zeros((4, T, 3), np.float32), {}, in_place=True)
+    assert own[0] is mine_uv and own[1] is mine_vis
+    np.testing.assert_array_equal(mine_uv, uv2)
+    np.testing.assert_array_equal(mine_vis, vis2)
 
 
 @pytest.mark.parametrize("bad", [dict(occluded_static_frames=-1), dict(occluded_static_frac=1.5),

@@ -58,7 +58,7 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
     if queries is None:
         t0 = np.where(vis.any(1), vis.argmax(1), 0)
         queries = np.concatenate([t0[:, None], tracks[np.arange(len(t0)), t0]], 1)
-    tracks = np.nan_to_num(tracks.astype(np.float32))
+    tracks = np.nan_to_num(np.asarray(tracks, np.float32), copy=False)  # the file's own array: no copy to spare
     vis = vis.astype(bool)
     tracks = hold_invisible(tracks, vis)
-    return TrackResult(tracks, vis, vis.astype(np.float32), queries.astype(np.float32))
+    return TrackResult(tracks, vis, vis.astype(np.float16), queries.astype(np.float32))  # confidence: not read

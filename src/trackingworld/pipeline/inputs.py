@@ -42,9 +42,9 @@ class Inputs:
         """Pixels ``[...,2]`` at the processing resolution -> the input's (pixel centres kept), float32; unchanged to
         the bit when the video is processed at its own size (``(x + 0.5) * 1 - 0.5`` in float32 is not always x)."""
         sx, sy = self.scale
-        out = uv.astype(np.float32).copy()
         if sx == 1 and sy == 1:
-            return out
+            return np.array(uv, np.float32)  # a copy (one: a long video's [N,T,2] is gigabytes)
+        out = np.empty(uv.shape, np.float32)
         out[..., 0] = (uv[..., 0] + 0.5) * sx - 0.5
         out[..., 1] = (uv[..., 1] + 0.5) * sy - 0.5
         return out

@@ -44,7 +44,9 @@ def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: d
     path = None if cache_dir is None or cfg.track2d.tracker == "file" else cache_dir / "tracks.npz"
     z = cached(path, key, compute, "2D tracks", verbose)
     timings["track2d"] = time.perf_counter() - t0
-    return TrackResult(z["tracks"], z["visible"], z["confidence"].astype(np.float32), z["queries"])
+    # the confidences as cached (float16): the lifting does not read them, and float32 would hold 2 bytes more of
+    # every track at every frame for the whole run
+    return TrackResult(z["tracks"], z["visible"], z["confidence"], z["queries"])
 
 
 def _warn(message: str | None, verbose: bool) -> None:

@@ -304,12 +304,13 @@ def query_depths(depth: np.ndarray, uv: np.ndarray, qf: np.ndarray, cand: np.nda
 
 
 def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xyz,
-                     info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     info: dict, in_place: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(not in the paper) Every dynamic track that is its query pixel's static point wherever that point is in view,
     and strayed where a nearer surface hid it (``optim.occluded_static``; the consistent video depth ``depth
     [T,h,w]`` metres gives the query pixels' depths and what hides them), becomes that static point: ``dynamic``
     and ``xyz`` updated in place, its 2D track the point's projection and its visibility the query frame and the
-    in-view frames where it was on the point. Returns (uv, vis, the tracks changed); copies when any changed."""
+    in-view frames where it was on the point. Returns (uv, vis, the tracks changed); copies when any changed
+    (``in_place``: uv and vis, the caller's own copies, written in place)."""
     cand = np.flatnonzero(dynamic)
     if cfg.occluded_static_frames <= 0 or not len(cand):
         return uv, vis, np.zeros(0, np.int64)
@@ -319,7 +320,7 @@ def occlusion_rescue(uv, vis, qf, depth, poses, K, cfg: OptimConfig, dynamic, xy
                                                    min_frames=cfg.occluded_static_in_view,
                                                    min_hidden=cfg.occluded_static_frames,
                                                    in_front=cfg.occluded_static_depth)
-    return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "occluded_static")
+    return become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info, "occluded_static", in_place)
 
 
 PHOTO_MOVING_FRAMES = 6  # the photometric mover test needs at least this many tested frames (3: more static tracks
@@ -361,15 +362,17 @@ def photo_moving(uv, vis, qf, depth, poses, K, frames, masks, cfg: OptimConfig, 
 
 
 def become_static(uv, vis, cand, static, X, pix, seen, dynamic, xyz, info: dict,
-                  name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  name: str, in_place: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The candidates ``cand [n]`` that a test found ``static [n]`` become their points ``X [n,3]`` (world metres):
     ``dynamic`` and ``xyz`` updated in place, their 2D tracks ``pix [m,T,2]`` and visibility ``seen [m,T]``;
-    ``info[name]`` counts them. Returns (uv, vis, the tracks changed); copies when any changed."""
+    ``info[name]`` counts them. Returns (uv, vis, the tracks changed); copies when any changed, unless
+    ``in_place`` (then uv and vis themselves, written: one ``[N,T,2]`` array fewer on a long video)."""
     idx = cand[static]
     info[name] = {"tested": int(len(cand)), "static": int(len(idx))}
     if not len(idx):
         return uv, vis, idx
-    uv, vis = uv.copy(), vis.copy()
+    if not in_place:
+        uv, vis = uv.copy(), vis.copy()
     uv[idx], vis[idx] = pix, seen
     dynamic[idx] = False
     xyz[idx] = X[static][:, None].astype(xyz.dtype)

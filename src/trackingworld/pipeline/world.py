@@ -124,6 +124,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         D = D_raw  # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior)
         if cfg.dc_edge_sigma_px > 0 and len(static_idx):
             D = edge_free_prior(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D_raw)
+            D_raw = None  # sampled again for the video depth: not held through the stages (4 bytes an entry)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
         obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
@@ -278,10 +279,14 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             object_id[dyn], object_poses = place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype,
                                                        device, info, (prior.shape[2], prior.shape[1]), carry,
                                                        None if ahead is None else ahead.job())
+    target = carry = None  # let go: [Nd,T] and the carrying's [Nd,T,3] (now in xyz)
 
     with tm("video_depth"):
         # the raw prior here: the ratios scale the raw prior's maps
+        if D_raw is None:  # the same numbers where the video depth reads them, the observations seen now
+            D_raw = sample_maps(prior, uv, vis)
         depth, info["video_depth_ahead_frames"] = video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)
+    D_raw = D = None  # not read below: let go (each [N,T]; 1.4M tracks x 150 frames, 0.84 GB)
     if cfg.photo_static_grey > 0 and frames is not None:
         with tm("photo_static"):
             # dynamic tracks that are static points dragged off by a mover's flow, found by their colours; last, so
@@ -294,7 +299,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         with tm("occluded_static"):
             # dynamic tracks that are static points the tracker followed onto a mover passing in front of them; last
             # too, for the same reason, and it reads the video depth
-            uv, vis, _ = occlusion_rescue(uv, vis, qf, depth, poses, K, cfg, dynamic, xyz, info)
+            # in place where the photometric rescue made uv and vis copies (tr's own arrays are not written)
+            uv, vis, _ = occlusion_rescue(uv, vis, qf, depth, poses, K, cfg, dynamic, xyz, info,
+                                          in_place=uv is not tr.tracks and vis is not tr.visible)
             steps.after("occluded_static", dynamic)
     if cfg.photo_moving_share > 0 and frames is not None:
         with tm("photo_moving"):

@@ -15,7 +15,8 @@ class TrackResult:
     tracks: [N,T,2] float32 pixels (x right, y down, pixel centres at integers); finite everywhere. Where
         the point is not visible: the tracker's estimate (carried through occlusion), or, for trackers and
         files without one, the last observed position (:func:`hold_invisible`).
-    visible: [N,T] bool. confidence: [N,T] float32 in [0,1]. queries: [N,3] float32 (t, x, y).
+    visible: [N,T] bool. confidence: [N,T] in [0,1], float32 from a tracker, float16 as cached or read from a
+        tracks file (the lifting does not read it). queries: [N,3] float32 (t, x, y).
     """
 
     tracks: np.ndarray
