@@ -24,10 +24,14 @@ priors given): 0.86 / 1.38 / 2.44 GB for 124,656 / 164,919 / 257,283 tracks over
 BYTES_PER_ENTRY x tracks x frames lies 4% below to 30% above those. Before the 2D tracking the tracks are
 guessed from the pixels and frames (``TRACKS_PER_PIXEL_FRAME``: 112k-125k / 160-165k / 257k tracks at 30 / 60 /
 120 frames of 320x240, 747k at 30 frames of 854x480; the guess 123k / 169k / 261k / 656k); a scene with more
-motion or occlusion starts more tracks. A long real video lies further off: ``../shared/data/pstudio.mp4``'s 150
-frames of 640x360 (a fixed camera, people moving; weight-free priors, the tracks cached) peaked at 20.5 GB for
-1,404,324 tracks, 14% above the estimate of 17.5 GB, and the guess before the tracking was 921,600 tracks, 11.8
-GB (stop 85)."""
+motion or occlusion starts more tracks. A long real video lay further off: ``../shared/data/pstudio.mp4``'s 150
+frames of 640x360 (a fixed camera, people moving; weight-free priors, the tracks cached) peaked at 20.5 GB at stop
+85 and 23.5 GB (22,913,136 kB) at stop 86 for 1,404,324 tracks, against an estimate of 17.55 GB; a quarter of its
+tracks are dynamic, and the rigid-mover step held float64 copies of theirs beside the carrying's arrays. Since stop
+86 the step reads the float32 arrays and the carrying writes in place, among other copies let go
+(``docs/speed.md``, "Stop 86"): 17.9 GB (17,511,936 kB), 2% above the estimate; 854x480 2.52 GB (1% above) and
+the 120-frame video 2.82 GB (11% below). The guess before the tracking was 921,600 tracks there (11.8 GB): a fixed
+camera with people moving starts more tracks than the guess."""
 
 from __future__ import annotations
 
