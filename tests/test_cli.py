@@ -99,6 +99,10 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     (["run", "{frames}", "--out", "{out}", "--epsilon", "nan"], "argument --epsilon: must be > 0, got 'nan'"),
     (["track2d", "{frames}", "--out", "{out}.npz", "--grid-stride", "x"], "--grid-stride: expected an integer"),
     (["synth", "{out}", "--frames", "1"], "argument --frames: must be >= 2, got '1'"),
+    # a list that starts with a minus sign is the option's value, not an option (argparse: "expected one argument")
+    (["run", "{frames}", "--out", "{out}", "--intrinsics", "-100,100,160,120"],
+     "-100,100,160,120: intrinsics need positive finite focal lengths"),
+    (["track2d", "{frames}", "--out", "{out}.npz", "--flow-patch", "-8,4"], "--flow-patch: the patch stride must be"),
 ])
 def test_numbers_out_of_range_refused_by_the_parser(tiny_scene, tmp_path, capsys, args, needle):
     rc = main([a.format(out=str(tmp_path / "o"), frames=str(tiny_scene / "input" / "frames")) for a in args])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -642,10 +643,26 @@ def cmd_export(a) -> int:
     return 0
 
 
+NEGATIVE_LIST = re.compile(r"^-[0-9.][0-9.,eE+-]*$")  # "-100,100,160,120": a value, not an option
+
+
+def joined_negative_values(argv: list[str]) -> list[str]:
+    """``argv`` with each ``--option VALUE`` whose value starts with a minus sign and is a list of numbers written
+    as ``--option=VALUE``: argparse takes ``-100,100,160,120`` for an option of its own (it knows only bare negative
+    numbers) and would say "expected one argument" rather than what is wrong with the value."""
+    out: list[str] = []
+    for tok in argv:
+        if out and NEGATIVE_LIST.match(tok) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     try:
-        a = p.parse_args(argv)
+        a = p.parse_args(joined_negative_values(sys.argv[1:] if argv is None else list(argv)))
     except SystemExit as e:  # argparse has printed its usage and error (or the help); its exit code
         return int(e.code or 0) if not isinstance(e.code, str) else 2
     if a.version:
