@@ -371,3 +371,15 @@ def test_float32_tracks_give_the_numbers_of_their_float64_copies():
     assert i64["rigid_groups"] >= 1 and i32 == i64
     assert np.array_equal(g32, g64) and np.array_equal(m32, m64, equal_nan=True)
     assert out32.dtype == np.float32 and np.array_equal(out32, out64.astype(np.float32))
+
+
+def test_camera_depths_where_indexed_are_those_of_the_whole_array():
+    from trackingworld.optim.rigid import CameraDepths
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    for xyz in (X, X.astype(np.float32)):
+        whole, lazy = camera_depths(xyz, poses), CameraDepths(xyz, poses)
+        rows = np.array([5, 0, 599, 5])
+        assert np.array_equal(lazy[rows, 3], whole[rows, 3])  # one frame
+        assert np.array_equal(lazy[rows, qf[rows]], whole[rows, qf[rows]])  # a frame per track
+        assert np.array_equal(lazy[:, 7], whole[:, 7]) and lazy[rows, 3].dtype == np.float64

@@ -184,8 +184,11 @@ def carry_hidden(xyz: np.ndarray, vis: np.ndarray, k: int = 8, reach: float = 0.
     if T < 2:
         return out
     vis_t = np.ascontiguousarray(vis.T)  # [T,N]
-    # [T,N,3], per pair in float64 below; read at the visible frames only, where ``out`` is still ``xyz``
-    pos = np.ascontiguousarray(out.transpose(1, 0, 2), dtype=np.float32)
+    # [T,N,3] float32, per pair in float64 below; read at the visible frames only, where ``out`` is still ``xyz``,
+    # and before ``out`` is written: float32 positions are read where they are (a frames-first copy would hold 12
+    # bytes an observation more at the carrying's peak, and the searches beside the rigid step do not set its time)
+    pos = out.transpose(1, 0, 2) if out.dtype == np.float32 else np.ascontiguousarray(out.transpose(1, 0, 2),
+                                                                                         dtype=np.float32)
     seen = vis.any(1)
     motion = None  # [T,N,2] metres: every visible track's scaled image velocity (known or imputed)
     if uv is not None and motion_scale > 0:

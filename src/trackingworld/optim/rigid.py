@@ -105,9 +105,10 @@ class RigidSettings:
     split_share: float = 0.1
 
 
-def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
+def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
     """Pairs ``[P,2]`` of tracks: each track with its ``neighbours`` nearest tracks seen in its query frame
-    ``qf [N]``, within ``neighbour_px`` there and at depths ``z [N,T]`` within ``depth_tol``."""
+    ``qf [N]``, within ``neighbour_px`` there and at depths ``z [N,T]`` (an array or :class:`CameraDepths`) within
+    ``depth_tol``."""
     pairs = []
     for t in range(vis.shape[1]):
         q = np.flatnonzero(qf == t)
@@ -123,6 +124,21 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z: np.ndarray, qf: np.ndarr
         keep = (a != b) & (_log_ratio(z[a, t], z[b, t]) <= s.depth_tol)
         pairs.append(np.stack([a[keep], b[keep]], 1))
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
+
+
+class CameraDepths:
+    """The camera z ``[...]`` (metres) of world positions ``xyz [N,T,3]`` in the frames of camera-to-world ``poses
+    [T,4,4]``, computed where indexed (``z[rows, frames]``, each an index or an array) rather than held: an ``[N,T]``
+    float64 array is 8 bytes an observation, and the step reads a few of them. The numbers are those of
+    :func:`~trackingworld.geometry.camera_depths` (the same products and sums, in float64)."""
+
+    def __init__(self, xyz: np.ndarray, poses: np.ndarray):
+        self.xyz, self.row = xyz, invert_pose(poses)[:, 2]  # [T,4] the world-to-camera row of z
+
+    def __getitem__(self, key) -> np.ndarray:
+        rows, frames = key
+        p, r = self.xyz[rows, frames], self.row[frames]
+        return p[..., 0] * r[..., 0] + p[..., 1] * r[..., 1] + p[..., 2] * r[..., 2] + r[..., 3]
 
 
 def _ring(adj, idx: np.ndarray, hops: int) -> np.ndarray:
@@ -277,7 +293,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     (a subset cast, or a float64 term beside them), so the numbers are those of float64 inputs."""
     N, T = vis.shape
     target = np.ascontiguousarray(target, np.float64)  # once, not at each membership test (optim.point_fit)
-    z = camera_depths(xyz, poses)
+    z = CameraDepths(xyz, poses)
     rng = np.random.default_rng(s.rng_seed)
     keys = rng.random(N) if s.keyed_draw else None
     seen = vis.sum(1)
