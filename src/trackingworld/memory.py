@@ -29,9 +29,9 @@ frames of 640x360 (a fixed camera, people moving; weight-free priors, the tracks
 85 and 23.5 GB (22,913,136 kB) at stop 86 for 1,404,324 tracks, against an estimate of 17.55 GB; a quarter of its
 tracks are dynamic, and the rigid-mover step held float64 copies of theirs beside the carrying's arrays. Since stop
 86 the step reads the float32 arrays and the carrying writes in place, among other copies let go
-(``docs/speed.md``, "Stop 86"): 17.9 GB (17,511,936 kB), 2% above the estimate; 854x480 2.52 GB (1% above) and
-the 120-frame video 2.82 GB (11% below). The guess before the tracking was 921,600 tracks there (11.8 GB): a fixed
-camera with people moving starts more tracks than the guess."""
+(``docs/speed.md``, "Stop 86"): 15.5 GB (15,126,588 kB), 12% below the estimate; 854x480 2.52-2.64 GB (1-6%
+above) and the 120-frame video 2.79 GB (12% below). The guess before the tracking was 921,600 tracks there (11.8
+GB): a fixed camera with people moving starts more tracks than the guess."""
 
 from __future__ import annotations
 
