@@ -476,3 +476,36 @@ def test_a_batch_loads_its_depth_model_once(tiny_scene, tmp_path, tiny_depth_any
         release()
     assert len(loads) == 1
     assert [load_result(tmp_path / "out" / n).depth.shape[0] for n in "ab"] == [8, 6]
+
+
+def test_inputs_are_known_by_their_content_not_their_path_or_times(tmp_path):
+    # a copied, moved or touched video keeps its cached tracks and priors (a copied data folder has new times: 450 s
+    # of 2D tracking again on a 150-frame video); a changed byte does not
+    import os
+    import shutil
+
+    from trackingworld.io.cache import content_identity
+
+    video = tmp_path / "a" / "clip.mp4"
+    video.parent.mkdir()
+    video.write_bytes(bytes(range(256)) * 50)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        (frames / f"{i:05d}.png").write_bytes(bytes([i]) * 100)
+    first, folder = content_identity(video), content_identity(frames)
+    os.utime(video, (1e9, 1e9))
+    moved = tmp_path / "b" / "other.mp4"
+    moved.parent.mkdir()
+    shutil.copy(video, moved)
+    assert content_identity(video) == content_identity(moved) == first and first["bytes"] == 12800
+    shutil.copytree(frames, tmp_path / "copy")
+    assert content_identity(tmp_path / "copy") == folder and folder["files"] == 3
+    data = bytearray(video.read_bytes())
+    data[100] ^= 1
+    video.write_bytes(bytes(data))
+    assert content_identity(video) != first
+    (frames / "00001.png").rename(frames / "00009.png")  # the frames' order is in their names
+    assert content_identity(frames) != folder
+    assert content_identity(tmp_path / "missing.mp4") == {"spec": str(tmp_path / "missing.mp4")}
+    assert content_identity(None) is None

@@ -31,7 +31,7 @@ from trackingworld import __version__
 from trackingworld.config import RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import intrinsics_matrix, scale_intrinsics
-from trackingworld.io.cache import cached, file_identity
+from trackingworld.io.cache import cached, content_identity, file_identity
 from trackingworld.io.priors import fill_invalid_depth
 from trackingworld.loaded_models import loaded
 from trackingworld.pipeline.inputs import Inputs
@@ -76,9 +76,9 @@ def static_tracks(tr: TrackResult, masks: np.ndarray) -> np.ndarray:
 def tracks_key(cfg: RunConfig, w: int, h: int) -> dict:
     """What the dense tracks of a run depend on (the cache key of the tracks and of every prior made from them)."""
     ic = cfg.inputs
-    return {"version": __version__, "input": file_identity(ic.input), "max_frames": ic.max_frames,
+    return {"version": __version__, "input": content_identity(ic.input), "max_frames": ic.max_frames,
             "stride": ic.frame_stride, "size": [w, h], "track2d": cfg.track2d.__dict__,
-            "tracks_file": file_identity(cfg.track2d.tracks_file)}
+            "tracks_file": content_identity(cfg.track2d.tracks_file)}
 
 
 def _intrinsics(inp: Inputs, tr: TrackResult, ic, K: np.ndarray, K_given: bool, pred, masks: np.ndarray,
