@@ -30,11 +30,11 @@ TIMINGS_FILE = "timings.json"  # each stage's seconds; written last
 ENVIRONMENT_FILE = "environment.json"  # the library versions that made the result (reproducible.environment)
 
 
-def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, timings: dict, verbose: bool) -> TrackResult:
+def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, key: dict, timings: dict,
+                 verbose: bool) -> TrackResult:
     """Dense 2D tracks at the processing resolution, reused from ``cache_dir`` when nothing they depend on
-    changed."""
+    changed (``key``: :func:`~trackingworld.priors.resolve.tracks_key`)."""
     t0 = time.perf_counter()
-    key = tracks_key(cfg, inp.frames.shape[2], inp.frames.shape[1])
 
     def compute():
         tr = track_video(inp.frames, cfg.track2d, None, cfg.device, verbose)
@@ -86,10 +86,11 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     T, H, W = inp.frames.shape[:3]
     if cfg.track2d.tracker != "file":  # a guess of the tracks, before the minutes of 2D tracking
         _warn(memory_warning(guess_tracks(H, W, T), T, guessed=True), verbose)
-    tr = dense_tracks(inp, cfg, cache_dir, timings, verbose)
+    key = tracks_key(cfg, W, H)  # once: it hashes the input (io.cache.content_identity), which both caches key on
+    tr = dense_tracks(inp, cfg, cache_dir, key, timings, verbose)
     _warn(memory_warning(tr.tracks.shape[0], T), verbose)
     t1 = time.perf_counter()
-    inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose)
+    inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose, key)
     timings["priors"] = time.perf_counter() - t1
     report: dict = {}
     with ipp_off():  # the lifting's numbers the same from run to run (trackingworld.reproducible)

@@ -109,12 +109,13 @@ def _intrinsics(inp: Inputs, tr: TrackResult, ic, K: np.ndarray, K_given: bool, 
 
 
 def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path | None,
-                   verbose: bool = True) -> tuple[Inputs, PriorInfo]:
-    """Fill in the priors ``inp`` lacks (depth, masks, intrinsics) at the processing resolution."""
+                   verbose: bool = True, key: dict | None = None) -> tuple[Inputs, PriorInfo]:
+    """Fill in the priors ``inp`` lacks (depth, masks, intrinsics) at the processing resolution; ``key``: the
+    run's :func:`tracks_key` when already made (None: made here)."""
     ic = cfg.inputs
     T, h, w = inp.frames.shape[:3]
     info = PriorInfo()
-    base_key = {**tracks_key(cfg, w, h), "seed": cfg.seed}
+    base_key = {**(tracks_key(cfg, w, h) if key is None else key), "seed": cfg.seed}
 
     def path(name: str) -> Path | None:
         return None if cache_dir is None else cache_dir / f"{name}.npz"
