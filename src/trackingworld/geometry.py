@@ -94,8 +94,13 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
 
 def camera_depths(xyz_world: np.ndarray, poses_c2w: np.ndarray) -> np.ndarray:
     """World tracks ``[N,T,3]`` -> camera z ``[N,T]`` in each frame of the camera-to-world ``poses_c2w [T,4,4]``."""
-    r = invert_pose(poses_c2w)[:, 2]  # [T,4] the world-to-camera row of z
-    return xyz_world[..., 0] * r[:, 0] + xyz_world[..., 1] * r[:, 1] + xyz_world[..., 2] * r[:, 2] + r[:, 3]
+    return depth_along(xyz_world, invert_pose(poses_c2w)[:, 2])  # [T,4] the world-to-camera row of z
+
+
+def depth_along(points: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Camera z ``[...]`` of world ``points [...,3]`` under world-to-camera z rows ``row [...,4]`` (broadcast):
+    ``x r0 + y r1 + z r2 + r3``, in that order (so a subset's depths are the whole array's to the bit)."""
+    return points[..., 0] * row[..., 0] + points[..., 1] * row[..., 1] + points[..., 2] * row[..., 2] + row[..., 3]
 
 
 def rigid_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:

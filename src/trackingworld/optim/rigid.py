@@ -42,7 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import camera_depths, invert_pose, rigid_transform, transform
+from trackingworld.geometry import camera_depths, depth_along, invert_pose, rigid_transform, transform
 from trackingworld.optim import lie, point_fit, stage2
 from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
 
@@ -130,15 +130,14 @@ class CameraDepths:
     """The camera z ``[...]`` (metres) of world positions ``xyz [N,T,3]`` in the frames of camera-to-world ``poses
     [T,4,4]``, computed where indexed (``z[rows, frames]``, each an index or an array) rather than held: an ``[N,T]``
     float64 array is 8 bytes an observation, and the step reads a few of them. The numbers are those of
-    :func:`~trackingworld.geometry.camera_depths` (the same products and sums, in float64)."""
+    :func:`~trackingworld.geometry.camera_depths` (both :func:`~trackingworld.geometry.depth_along`)."""
 
     def __init__(self, xyz: np.ndarray, poses: np.ndarray):
         self.xyz, self.row = xyz, invert_pose(poses)[:, 2]  # [T,4] the world-to-camera row of z
 
     def __getitem__(self, key) -> np.ndarray:
         rows, frames = key
-        p, r = self.xyz[rows, frames], self.row[frames]
-        return p[..., 0] * r[..., 0] + p[..., 1] * r[..., 1] + p[..., 2] * r[..., 2] + r[..., 3]
+        return depth_along(self.xyz[rows, frames], self.row[frames])
 
 
 def _ring(adj, idx: np.ndarray, hops: int) -> np.ndarray:
