@@ -383,3 +383,36 @@ def test_camera_depths_where_indexed_are_those_of_the_whole_array():
         assert np.array_equal(lazy[rows, 3], whole[rows, 3])  # one frame
         assert np.array_equal(lazy[rows, qf[rows]], whole[rows, qf[rows]])  # a frame per track
         assert np.array_equal(lazy[:, 7], whole[:, 7]) and lazy[rows, 3].dtype == np.float64
+
+
+def test_rows_read_as_the_copied_rows_for_every_index_the_step_uses():
+    from trackingworld.optim.rigid import Rows
+
+    a = np.arange(7 * 4 * 2, dtype=np.float32).reshape(7, 4, 2)
+    rows = np.array([6, 1, 3, 4])
+    view, ref = Rows(a, rows), a[rows]
+    assert view.shape == ref.shape and view.dtype == ref.dtype and len(view) == 4
+    mask = np.array([True, False, True, True])
+    for key in (2, np.array([3, 0, 0]), mask, slice(1, 3), (np.array([1, 2]), 3), (mask, slice(None), 1),
+                np.ix_(np.array([0, 2]), np.array([1, 3])), (np.array([0, 1]), np.array([2, 3]))):
+        assert np.array_equal(view[key], ref[key])
+    assert np.array_equal(view.copy(), ref) and np.array_equal(view.of(mask), rows[mask])
+
+
+def test_tracks_read_in_place_from_every_track_give_the_numbers_of_their_copies():
+    # the pipeline hands the step the dynamic tracks as rows of its arrays of every track (Rows), not copies
+    from trackingworld.optim.rigid import Rows
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    start = _lift(uv, z * 1.05, poses, K).astype(np.float32)
+    rng = np.random.default_rng(3)
+    dyn = np.sort(rng.choice(1000, len(uv), replace=False))  # the mover's rows among 1000 tracks
+    all_uv = rng.uniform(0, W, (1000, T, 2)).astype(np.float32)
+    all_xyz = rng.normal(0, 1, (1000, T, 3)).astype(np.float32)
+    all_uv[dyn], all_xyz[dyn] = uv, start
+    ref = rigid_movers(all_uv[dyn], vis, z * 1.05, all_xyz[dyn], poses, K, qf, OptimConfig(), RigidSettings())
+    got = rigid_movers(Rows(all_uv, dyn), vis, z * 1.05, Rows(all_xyz, dyn), poses, K, qf, OptimConfig(),
+                       RigidSettings())
+    assert ref[3]["rigid_groups"] >= 1 and got[3] == ref[3]
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    assert np.array_equal(got[2], ref[2], equal_nan=True)

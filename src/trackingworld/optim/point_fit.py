@@ -61,9 +61,10 @@ def _insertion_sort(v, n):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_dc, iters):
+def _fit_and_score(R, t, k, uv, depth, vis, rows, px_rows, frames, weights, offsets, log_dc, iters):
     """Every point's fit and scores (see :func:`fit_and_score`; ``k`` = fx, fy, cx, cy, the kernel's focal;
-    ``weights`` = lambda_ba, lambda_dc, lambda_asap)."""
+    ``weights`` = lambda_ba, lambda_dc, lambda_asap; track ``i``'s depths and visibility in row ``rows[i]``, its
+    pixels in row ``px_rows[i]``)."""
     fx, fy, cx, cy, kf = k[0], k[1], k[2], k[3], k[4]
     lba, ldc, lasap = weights[0], weights[1], weights[2]
     n, F = len(rows), len(frames)
@@ -76,6 +77,7 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
     ld = np.empty(F)  # log of each observation's depth target (floored at 1 mm)
     for i in range(n):
         row = rows[i]
+        pr = px_rows[i]
         cnt = 0
         for j in range(F):
             if vis[row, frames[j]]:
@@ -90,8 +92,8 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
             f = obs[o]
             c = frames[f]
             d = depth[row, c]
-            c0 = (uv[row, c, 0] - cx) / fx * d - t[f, 0]
-            c1 = (uv[row, c, 1] - cy) / fy * d - t[f, 1]
+            c0 = (uv[pr, c, 0] - cx) / fx * d - t[f, 0]
+            c1 = (uv[pr, c, 1] - cy) / fy * d - t[f, 1]
             c2 = d - t[f, 2]
             x0 += R[f, 0, 0] * c0 + R[f, 1, 0] * c1 + R[f, 2, 0] * c2
             x1 += R[f, 0, 1] * c0 + R[f, 1, 1] * c1 + R[f, 2, 1] * c2
@@ -111,8 +113,8 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
                 iz = 1.0 / z
                 pu = y0 * iz
                 pv = y1 * iz
-                r0 = fx * pu + cx - uv[row, c, 0]
-                r1 = fy * pv + cy - uv[row, c, 1]
+                r0 = fx * pu + cx - uv[pr, c, 0]
+                r1 = fy * pv + cy - uv[pr, c, 1]
                 if log_dc:
                     r2 = math.log(z) - ld[o]
                     ids = iz
@@ -157,8 +159,8 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
             c = frames[f]
             y0, y1, y2 = camera_point(R, t, f, x0, x1, x2)
             z = max(y2, 1e-3)
-            e0 = fx * y0 / z + cx - uv[row, c, 0]
-            e1 = fy * y1 / z + cy - uv[row, c, 1]
+            e0 = fx * y0 / z + cx - uv[pr, c, 0]
+            e1 = fy * y1 / z + cy - uv[pr, c, 1]
             e[o] = math.sqrt(e0 * e0 + e1 * e1)
             lr[o] = abs(math.log(max(y2, 1e-6) / max(depth[row, c], 1e-6)))
         _insertion_sort(e, cnt)
@@ -173,7 +175,8 @@ def _fit_and_score(R, t, k, uv, depth, vis, rows, frames, weights, offsets, log_
 def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, depth: np.ndarray, vis: np.ndarray,
                   weights: tuple[float, float, float], offsets: bool = True, log_dc: bool = True,
                   kernel_focal: float | None = None, iters: int = 6, rows: np.ndarray | None = None,
-                  frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  frames: np.ndarray | None = None, px_rows: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tracks ``rows [n]`` (None: all) each fitted as one point under fixed poses ``R [F,3,3]``, ``t [F,3]``
     (camera = R X + t) of the frames ``frames [F]`` (None: all) from their pixels ``uv [N,T,2]`` (float32 or
     float64) and depth targets ``depth [N,T]`` (metres) where ``vis [N,T]`` sees them: ``iters`` Gauss-Newton steps of
@@ -181,8 +184,11 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
     lambda_asap; ``offsets``, ``log_dc`` and ``kernel_focal`` as in :class:`trackingworld.optim.stage2.BAProblem`).
     Returns (the points ``[n,3]``; the median and 80th percentile ``[n,2]`` px of their reprojection errors over
     those frames, inf for a track seen in fewer than 3; the median ``[n]`` of ``|log(camera depth / target)|``, NaN
-    for a track seen in none)."""
+    for a track seen in none). ``px_rows [n]``: the tracks' rows of ``uv [M,T,2]`` where they are not ``rows``
+    (the rigid step reads the pipeline's pixels of every track in place, :class:`trackingworld.optim.rigid.Rows`;
+    None: ``rows``)."""
     rows = i64(np.arange(len(vis)) if rows is None else rows)
+    px_rows = rows if px_rows is None else i64(px_rows)
     frames = np.arange(vis.shape[1]) if frames is None else frames
     # float32 pixels are read as they are (a second compiled signature): every sum they enter has a float64 term, so
     # the numbers are those of a float64 copy, which for the rigid step's [N,T,2] would be 16 bytes an observation
@@ -190,7 +196,7 @@ def fit_and_score(R: np.ndarray, t: np.ndarray, K: np.ndarray, uv: np.ndarray, d
     args = (f64(R), f64(t), camera_constants(K, kernel_focal), px, f64(depth), np.ascontiguousarray(vis, np.bool_))
     rest = (i64(frames), f64(weights), bool(offsets), bool(log_dc), int(iters))
     # the tracks in parts on parallel threads: each one's fit is its own
-    parts = in_parts(lambda lo, hi: _fit_and_score(*args, rows[lo:hi], *rest),
+    parts = in_parts(lambda lo, hi: _fit_and_score(*args, rows[lo:hi], px_rows[lo:hi], *rest),
                      part_bounds(np.arange(len(rows) + 1), worker_threads(), MIN_PART_ROWS))
     if len(parts) == 1:
         return parts[0]

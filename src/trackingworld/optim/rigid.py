@@ -126,6 +126,43 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z, qf: np.ndarray, s: Rigid
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
 
 
+class Rows:
+    """The rows ``rows [n]`` of an array ``array [M,...]`` read as an ``[n,...]`` array, without copying them out:
+    ``Rows(a, rows)[key] == a[rows][key]`` for ``key`` an index, an index array, a boolean mask of the ``n`` rows or
+    a tuple whose first item is one of those (``np.ix_``'s too). The rigid step reads the dynamic tracks' pixels and
+    positions this way from the pipeline's arrays of every track (a copy of the dynamic ones: 20 bytes an
+    observation at the step's peak)."""
+
+    def __init__(self, array: np.ndarray, rows: np.ndarray):
+        self.array, self.rows = array, np.asarray(rows)
+        self.shape = (len(self.rows),) + array.shape[1:]
+        self.dtype = array.dtype
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def of(self, idx) -> np.ndarray:
+        """The rows of ``array`` that index ``idx`` (as above, or a slice) of these rows takes."""
+        if isinstance(idx, slice):
+            return self.rows[idx]
+        idx = np.asarray(idx)
+        return self.rows[np.flatnonzero(idx) if idx.dtype == np.bool_ else idx]
+
+    def __getitem__(self, key):
+        if isinstance(key, tuple):
+            return self.array[(self.of(key[0]),) + key[1:]]
+        return self.array[self.of(key)]
+
+    def copy(self) -> np.ndarray:
+        """``array[rows]``: the rows copied out."""
+        return self.array[self.rows]
+
+
+def _pixel_rows(uv, idx):
+    """(the array that holds the pixels ``uv`` (an array or :class:`Rows`), the rows of it ``idx`` takes)."""
+    return (uv.array, uv.of(idx)) if isinstance(uv, Rows) else (uv, idx)
+
+
 class CameraDepths:
     """The camera z ``[...]`` (metres) of world positions ``xyz [N,T,3]`` in the frames of camera-to-world ``poses
     [T,4,4]``, computed where indexed (``z[rows, frames]``, each an index or an array) rather than held: an ``[N,T]``
@@ -225,20 +262,24 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
 
 
 def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu", rows=None):
-    """Tracks ``uv [N,T,2]``, ``vis [N,T]``, ``target [N,T]`` (those of ``rows [n]``; None: all) fitted as points of
-    a rigid ``motion`` (:func:`fit_motion`). Returns (their points ``[n,3]`` in the object frame
-    (:func:`object_positions` places them on :func:`motion_poses`); median and 80th percentile of the reprojection
-    error ``[n,2]`` px over the solved frames a track is seen in, inf where fewer than 3; median
+    """Tracks ``uv [N,T,2]`` (an array or :class:`Rows`), ``vis [N,T]``, ``target [N,T]`` (those of ``rows [n]``;
+    None: all) fitted as points of a rigid ``motion`` (:func:`fit_motion`). Returns (their points ``[n,3]`` in the
+    object frame (:func:`object_positions` places them on :func:`motion_poses`); median and 80th percentile of the
+    reprojection error ``[n,2]`` px over the solved frames a track is seen in, inf where fewer than 3; median
     ``|log(depth / target)|`` ``[n]`` over those frames, NaN where none)."""
     order, R, t = motion
     if not stage2.compiled(R):  # the motion is solved in dtype on device (fit_motion)
         if rows is not None:
             uv, vis, target = uv[rows], vis[rows], target[rows]
+        elif isinstance(uv, Rows):
+            uv = uv.copy()
         return _place_on_motion_torch(uv, vis, target, motion, K, cfg, dtype, device)
     # the same steps compiled for the CPU (optim.point_fit): 10x faster
-    return point_fit.fit_and_score(R.detach().numpy(), t.detach().numpy(), K, uv, target, vis,
+    rows = np.arange(len(vis)) if rows is None else rows
+    px, px_rows = _pixel_rows(uv, rows)
+    return point_fit.fit_and_score(R.detach().numpy(), t.detach().numpy(), K, px, target, vis,
                                    (cfg.lambda_ba, 0.0 if cfg.no_depth_consistency else cfg.lambda_dc, cfg.lambda_asap),
-                                   not cfg.no_offsets, cfg.dc_space == "log", rows=rows, frames=order)
+                                   not cfg.no_offsets, cfg.dc_space == "log", rows=rows, frames=order, px_rows=px_rows)
 
 
 def _place_on_motion_torch(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu"):
@@ -289,7 +330,9 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     groups are found, the ``[N,T,3]`` array the groups' positions are written into and returned (None: a copy of
     ``xyz``); ``xyz`` is read only at the visible frames and the query frames. ``uv`` and ``xyz`` may be float32
     (the pipeline's, 20 bytes an observation less than float64 copies): every computation reads them in float64
-    (a subset cast, or a float64 term beside them), so the numbers are those of float64 inputs."""
+    (a subset cast, or a float64 term beside them), so the numbers are those of float64 inputs. They may also be
+    :class:`Rows` of the pipeline's arrays of every track (read in place: the same numbers); ``out`` is then a new
+    array."""
     N, T = vis.shape
     target = np.ascontiguousarray(target, np.float64)  # once, not at each membership test (optim.point_fit)
     z = CameraDepths(xyz, poses)
@@ -450,7 +493,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         n = len(objects)
         objects = bridge(objects, uv, vis, xyz, poses, K, size, s.bridge, log)
         info["rigid_joined"] = n - len(objects)
-    out = xyz.copy() if into is None else into()
+    out = xyz.copy() if into is None else into()  # Rows.copy(): its rows copied out
     groups = np.full(N, -1)
     motions = np.full((len(objects), T, 4, 4), np.nan)
     for g, o in enumerate(objects):

@@ -17,7 +17,7 @@ from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.parallel import core_taken, torch_threads, worker_threads
-from trackingworld.optim.rigid import RigidSettings, rigid_movers
+from trackingworld.optim.rigid import RigidSettings, Rows, rigid_movers
 from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
@@ -111,8 +111,9 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
             into = None if carry is None else pool.submit(_on_one_core, carry).result
             if beside is not None:
                 pool.submit(beside)
+            # the dynamic tracks' pixels and positions read in place (Rows), not copied out: 20 bytes an observation
             xyz[dyn], groups, motions, counts = rigid_movers(
-                uv[dyn], vis[dyn], target, xyz[dyn], poses.astype(np.float64),
+                Rows(uv, dyn), vis[dyn], target, Rows(xyz, dyn), poses.astype(np.float64),
                 K.astype(np.float64), queries[dyn, 0].astype(np.int64), cfg, settings, note, dtype, device, size, into)
     finally:
         if pool is not None:
