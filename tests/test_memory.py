@@ -37,6 +37,33 @@ def test_freed_large_arrays_are_reused_without_new_page_faults():
     assert faults < faults_default / 2
 
 
+# 32 arrays of 8 MB with a small one kept between each, the large ones dropped: free holes the heap keeps
+HOLES = """
+import numpy as np
+from trackingworld.memory import release_freed_memory, reuse_freed_memory
+
+def rss():
+    return int([l for l in open("/proc/self/status") if l.startswith("VmRSS")][0].split()[1]) * 1024
+
+print(reuse_freed_memory())
+big, small = [], []
+for _ in range(32):
+    big.append(np.ones(1 << 20))
+    small.append(np.ones(16))
+del big
+before = rss()
+print(release_freed_memory(), before - rss())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_released_memory_leaves_the_resident_set_where_the_heap_keeps_it():
+    out = subprocess.run([sys.executable, "-c", HOLES], capture_output=True, text=True, check=True).stdout.split()
+    if out[0] == "False":
+        pytest.skip("not glibc")
+    assert out[1] == "True" and int(out[2]) > 200e6  # of the 268 MB dropped
+
+
 def test_the_peak_estimate_warns_only_past_the_available_memory():
     from trackingworld.memory import available_bytes, estimate_peak_bytes, guess_tracks, memory_warning
 
@@ -95,3 +122,26 @@ def test_the_available_memory_is_the_smaller_of_the_kernel_and_a_container_limit
     (v1 / "memory.limit_in_bytes").write_text("9223372036854771712\n")  # v1's "no limit"
     assert available_bytes(meminfo, v1.parent) == 20000000 * 1024
     assert available_bytes(tmp_path / "missing", none) is None
+
+
+def test_a_run_hands_back_freed_memory_before_the_stages_of_its_peak(tiny_scene, tmp_path, monkeypatch):
+    # after the 2D tracks and the priors (pipeline.run), and as stage 3 and the rigid step start (pipeline.world)
+    import trackingworld.pipeline.run as run_mod
+    import trackingworld.pipeline.world as world
+    from trackingworld.cli.main import main
+
+    calls = []
+    monkeypatch.setattr(run_mod, "release_freed_memory", lambda: calls.append("run"))
+    real_timed = world.timed
+
+    def timed(timings, name, verbose):
+        calls.append(name)
+        return real_timed(timings, name, verbose)
+
+    monkeypatch.setattr(world, "timed", timed)
+    monkeypatch.setattr(world, "release_freed_memory", lambda: calls.append("released"))
+    inp = tiny_scene / "input"
+    assert main(["run", str(inp / "frames"), "--out", str(tmp_path / "o"), "--depth", str(inp / "depth.npy"),
+                 "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet"]) == 0
+    assert calls[:2] == ["run", "run"]  # before the first stage
+    assert [calls[i - 1] for i, c in enumerate(calls) if c == "released"] == ["stage3", "rigid_movers"]

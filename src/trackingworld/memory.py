@@ -16,22 +16,34 @@ reused in part, then an 8 GB one) peaked at 16.2 GB against 8.2 GB. A process-wi
 make it on import: ``trackingworld`` (the CLI) and the benchmarks call it. ``TRACKINGWORLD_MALLOC=0`` in the
 environment leaves malloc as it is; it does nothing off glibc.
 
+On a long real video what stayed resident grew large: the 2D tracking and the priors make many temporaries, and at
+the start of stage 3 of ``../shared/data/pstudio.mp4``'s 150 frames the process held 2.4 GB more than a run on its
+cached tracks. :func:`release_freed_memory` (glibc's ``malloc_trim``) hands the pages of every free block back, the
+blocks kept for reuse: after the 2D tracking, after the priors and before the stages that hold the peak
+(``pipeline.world.RELEASED_BEFORE``: stage 3 and the rigid step). That run, the tracks computed afresh: peak RSS
+17,077,720 kB released after the tracking and the priors only, 13,042,048 kB also before the two stages (stop 87,
+``docs/speed.md``), the same result to the bit; the optimisation 302 s against 288 s on the cached tracks without
+the release (its page faults; released before every stage, 326 s). The 120-frame synthetic video (priors given, two
+runs of each, alternated): peak 2,813,256 / 2,582,984 kB before, 2,491,072 / 2,575,696 kB after, the optimisation
+36.3 / 34.3 s before, 36.2 / 35.9 s after.
+
 The estimate (:func:`estimate_peak_bytes`): a run holds a few arrays of every track at every frame, so its peak
 grows with tracks x frames, and the dense tracks grow with the frames too (the pixels no track covers start new
 ones). Peak RSS of ``trackingworld run`` measured at stop 45 (``/usr/bin/time -v``, the `default` scene with its
 priors given): 0.86 / 1.38 / 2.44 GB for 124,656 / 164,919 / 257,283 tracks over 30 / 60 / 120 frames at 320x240
 (tracks given); 2.56-2.66 GB for 747,489 tracks over 30 frames at 854x480 (with the 2D tracking). BASE_BYTES +
 BYTES_PER_ENTRY x tracks x frames lies 4% below to 30% above those. Before the 2D tracking the tracks are
-guessed from the pixels and frames (``TRACKS_PER_PIXEL_FRAME``: 112k-125k / 160-165k / 257k tracks at 30 / 60 /
-120 frames of 320x240, 747k at 30 frames of 854x480; the guess 123k / 169k / 261k / 656k); a scene with more
-motion or occlusion starts more tracks. A long real video lay further off: ``../shared/data/pstudio.mp4``'s 150
-frames of 640x360 (a fixed camera, people moving; weight-free priors, the tracks cached) peaked at 20.5 GB at stop
-85 and 23.5 GB (22,913,136 kB) at stop 86 for 1,404,324 tracks, against an estimate of 17.55 GB; a quarter of its
-tracks are dynamic, and the rigid-mover step held float64 copies of theirs beside the carrying's arrays. Since stop
-86 the step reads the float32 arrays and the carrying writes in place, among other copies let go
-(``docs/speed.md``, "Stop 86"): 15.5 GB (15,126,588 kB), 12% below the estimate; 854x480 2.52-2.64 GB (1-6%
-above) and the 120-frame video 2.79 GB (12% below). The guess before the tracking was 921,600 tracks there (11.8
-GB): a fixed camera with people moving starts more tracks than the guess."""
+guessed from the pixels and frames (``TRACKS_PER_PIXEL_FRAME`` new tracks per pixel per frame beyond the first
+frame's). Real videos start more than the synthetic scenes: ``../shared/data/pstudio.mp4`` (640x360, a fixed camera,
+people moving) 632,024 tracks in 40 frames and 1,404,324 in 150, ``dog.mp4`` 1,011,809 in its 32 frames of 854x480:
+0.034-0.046 a pixel a frame, against 0.020 for the `default` scene (112k-125k / 160-165k / 257k tracks at 30 / 60 /
+120 frames of 320x240, 747k at 30 frames of 854x480). The guess takes 0.04 since stop 87 (it took 0.02, 1.5x below
+the real videos): 599,040 / 1,612,800 / 934,617 for those three, 1.4-1.7x above the synthetic ones; it only
+decides a warning, and too high is the safer side. A long real video's peak: pstudio's 150 frames (weight-free
+priors) peaked at 23.5 GB (22,913,136 kB) at stop 86 with the tracks cached, 15.5 GB after the copies that stop let
+go (``docs/speed.md``, "Stop 86"), and since stop 87 (the rigid step reads the dynamic tracks in place, the freed memory
+handed back above) 13,042,048 kB with the tracks computed in the run, 24% below the estimate of 17.55 GB;
+854x480 2.52-2.64 GB (1-6% above it, stop 86)."""
 
 from __future__ import annotations
 
@@ -61,9 +73,26 @@ def reuse_freed_memory() -> bool:
     return bool(mallopt(M_MMAP_MAX, 0)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
 
 
+def release_freed_memory() -> bool:
+    """Hand the pages of the memory the process has freed back to the system (glibc's ``malloc_trim``: the heap's
+    free blocks anywhere in it, not only at its top), after a phase whose many temporaries leave holes later arrays
+    cannot fill (module docstring: after the 2D tracking and the priors, before the stages of the peak). The blocks
+    stay the heap's, so a later array that fits one takes it, its pages faulted in again. True when it was called;
+    False off Linux/glibc."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim.argtypes, trim.restype = (ctypes.c_size_t,), ctypes.c_int
+    trim(0)
+    return True
+
+
 BASE_BYTES = 0.7e9  # the interpreter, torch, the frames and priors of a short video (module docstring)
 BYTES_PER_ENTRY = 80.0  # per track per frame, at the run's peak
-TRACKS_PER_PIXEL_FRAME = 0.02  # new tracks per pixel per frame, beyond one per pixel of the first frame
+TRACKS_PER_PIXEL_FRAME = 0.04  # new tracks per pixel per frame, beyond one per pixel of the first frame (real videos)
 
 
 def estimate_peak_bytes(n_tracks: int, n_frames: int) -> float:

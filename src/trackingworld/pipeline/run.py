@@ -14,7 +14,7 @@ from trackingworld.errors import InputError
 from trackingworld.io.atomic import write_json
 from trackingworld.io.cache import cached
 from trackingworld.io.result import CONFIG_FILE, Result, save_result
-from trackingworld.memory import guess_tracks, memory_warning
+from trackingworld.memory import guess_tracks, memory_warning, release_freed_memory
 from trackingworld.pipeline.baseline import run_baseline
 from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import check_track2d, track_video
@@ -88,10 +88,12 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
         _warn(memory_warning(guess_tracks(H, W, T), T, guessed=True), verbose)
     key = tracks_key(cfg, W, H)  # once: it hashes the input (io.cache.content_identity), which both caches key on
     tr = dense_tracks(inp, cfg, cache_dir, key, timings, verbose)
+    release_freed_memory()  # the tracker's temporaries (trackingworld.memory)
     _warn(memory_warning(tr.tracks.shape[0], T), verbose)
     t1 = time.perf_counter()
     inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose, key)
     timings["priors"] = time.perf_counter() - t1
+    release_freed_memory()  # the priors' models and temporaries
     report: dict = {}
     with ipp_off():  # the lifting's numbers the same from run to run (trackingworld.reproducible)
         result = METHODS[cfg.method](inp, tr, cfg, timings, report)

@@ -20,6 +20,7 @@ from trackingworld.config import OPTIM_CHOICES, OptimConfig, RunConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import focal_length
 from trackingworld.io.result import Result
+from trackingworld.memory import release_freed_memory
 from trackingworld.optim import lie, stage2
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives
 from trackingworld.optim.label_steps import LabelSteps
@@ -53,10 +54,17 @@ from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult
 
+# the stages that hold the run's peak memory: the memory the stages before them freed is handed back to the system
+# first (trackingworld.memory.release_freed_memory); before every stage it cost page faults in all of them
+RELEASED_BEFORE = ("stage3", "rigid_movers")
+
 
 @contextmanager
 def timed(timings: dict, name: str, verbose: bool):
-    """Add the wall time of the block to ``timings[name]`` (seconds), with a start / end line on stderr."""
+    """Add the wall time of the block to ``timings[name]`` (seconds), with a start / end line on stderr; before
+    the stages of RELEASED_BEFORE, the freed memory handed back."""
+    if name in RELEASED_BEFORE:
+        release_freed_memory()
     t0 = time.perf_counter()
     if verbose:
         print(f"[{name}] ...", file=sys.stderr, flush=True)
