@@ -144,4 +144,4 @@ def test_a_run_hands_back_freed_memory_before_the_stages_of_its_peak(tiny_scene,
     assert main(["run", str(inp / "frames"), "--out", str(tmp_path / "o"), "--depth", str(inp / "depth.npy"),
                  "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet"]) == 0
     assert calls[:2] == ["run", "run"]  # before the first stage
-    assert [calls[i - 1] for i, c in enumerate(calls) if c == "released"] == ["stage3", "rigid_movers"]
+    assert [calls[i + 1] for i, c in enumerate(calls) if c == "released"] == ["stage3", "rigid_movers"]

@@ -20,7 +20,7 @@ On a long real video what stayed resident grew large: the 2D tracking and the pr
 the start of stage 3 of ``../shared/data/pstudio.mp4``'s 150 frames the process held 2.4 GB more than a run on its
 cached tracks. :func:`release_freed_memory` (glibc's ``malloc_trim``) hands the pages of every free block back, the
 blocks kept for reuse: after the 2D tracking, after the priors and before the stages that hold the peak
-(``pipeline.world.RELEASED_BEFORE``: stage 3 and the rigid step). That run, the tracks computed afresh: peak RSS
+(``pipeline.world``: stage 3 and the rigid step). That run, the tracks computed afresh: peak RSS
 17,077,720 kB released after the tracking and the priors only, 13,042,048 kB also before the two stages (stop 87,
 ``docs/speed.md``), the same result to the bit; the optimisation 302 s against 288 s on the cached tracks without
 the release (its page faults; released before every stage, 326 s). The 120-frame synthetic video (priors given, two
@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import os
 import sys
 from pathlib import Path
@@ -58,19 +59,29 @@ M_MMAP_MAX = -4
 TRIM_THRESHOLD = 2**31 - 1  # bytes: free memory at the heap's top kept up to this (mallopt takes an int)
 
 
+@functools.cache
+def _glibc() -> ctypes.CDLL | None:
+    """The C library when it is glibc on Linux (its ``mallopt`` and ``malloc_trim`` are the ones meant here), else
+    None; loaded once (``find_library`` asks ``ldconfig``)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.gnu_get_libc_version  # noqa: B018 (only glibc has it: another libc's mallopt may differ)
+    except (OSError, AttributeError):
+        return None
+    libc.mallopt.argtypes, libc.mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    libc.malloc_trim.argtypes, libc.malloc_trim.restype = (ctypes.c_size_t,), ctypes.c_int
+    return libc
+
+
 def reuse_freed_memory() -> bool:
     """Set glibc's malloc to keep freed memory for reuse (module docstring). True when it was set; False off
     Linux/glibc or with ``TRACKINGWORLD_MALLOC=0``."""
-    if os.environ.get("TRACKINGWORLD_MALLOC", "1") == "0" or not sys.platform.startswith("linux"):
+    libc = None if os.environ.get("TRACKINGWORLD_MALLOC", "1") == "0" else _glibc()
+    if libc is None:
         return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-        libc.gnu_get_libc_version  # noqa: B018 (only glibc has it: another libc's mallopt may differ)
-    except (OSError, AttributeError):
-        return False
-    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return bool(mallopt(M_MMAP_MAX, 0)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
+    return bool(libc.mallopt(M_MMAP_MAX, 0)) and bool(libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
 
 
 def release_freed_memory() -> bool:
@@ -79,14 +90,10 @@ def release_freed_memory() -> bool:
     cannot fill (module docstring: after the 2D tracking and the priors, before the stages of the peak). The blocks
     stay the heap's, so a later array that fits one takes it, its pages faulted in again. True when it was called;
     False off Linux/glibc."""
-    if not sys.platform.startswith("linux"):
+    libc = _glibc()
+    if libc is None:
         return False
-    try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return False
-    trim.argtypes, trim.restype = (ctypes.c_size_t,), ctypes.c_int
-    trim(0)
+    libc.malloc_trim(0)
     return True
 
 

@@ -54,17 +54,10 @@ from trackingworld.priors.sources import depth_source, intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult
 
-# the stages that hold the run's peak memory: the memory the stages before them freed is handed back to the system
-# first (trackingworld.memory.release_freed_memory); before every stage it cost page faults in all of them
-RELEASED_BEFORE = ("stage3", "rigid_movers")
-
 
 @contextmanager
 def timed(timings: dict, name: str, verbose: bool):
-    """Add the wall time of the block to ``timings[name]`` (seconds), with a start / end line on stderr; before
-    the stages of RELEASED_BEFORE, the freed memory handed back."""
-    if name in RELEASED_BEFORE:
-        release_freed_memory()
+    """Add the wall time of the block to ``timings[name]`` (seconds), with a start / end line on stderr."""
     t0 = time.perf_counter()
     if verbose:
         print(f"[{name}] ...", file=sys.stderr, flush=True)
@@ -272,6 +265,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             thinned = None  # stage 3's field from the refitted points
             info["static_refit"] = int(len(refit))
     rigid = cfg.rigid_movers and not cfg.no_dynamic_opt  # w/o D.O.T: no dynamic optimisation at all
+    # stage 3 and the rigid step hold the run's peak: the memory the stages before freed is handed back first
+    # (trackingworld.memory.release_freed_memory; before every stage it cost page faults in all of them)
+    release_freed_memory()
     with tm("stage3"):
         dyn = np.flatnonzero(dynamic)
         # with the rigid step, the hidden frames are carried beside it (its timing includes them)
@@ -283,6 +279,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     if rigid and target is not None:
         if worker_threads() > 1:
             ahead = SearchAhead(uv, vis, prior.shape[1:])
+        release_freed_memory()
         with tm("rigid_movers"):
             object_id[dyn], object_poses = place_rigid(dyn, tr.queries, uv, vis, target, xyz, poses, K, cfg, dtype,
                                                        device, info, (prior.shape[2], prior.shape[1]), carry,
