@@ -92,6 +92,73 @@ def test_bad_input_one_line_error(tiny_scene, tmp_path, capsys, args, needle):
     assert not (tmp_path / "o" / "result.npz").exists()
 
 
+@pytest.mark.parametrize("case,needle", [
+    # a resize would smear a rotated or transposed array over the frames
+    ("depth_T", "depth.npy: depth of 96x128 px for frames of 128x96: height and width swapped"),
+    ("masks_T", "masks.npy: masks of 96x128 px for frames of 128x96: height and width swapped"),
+    # millimetres in an integer .npy are not guessed
+    ("depth_mm", "depth.npy: depth holds uint16 numbers; give float metres"),
+    # intrinsics of another resolution bend every ray
+    ("intrinsics", "the principal point (640, 48) px lies outside the 128x96 frames"),
+    # a track2d file records its frames' size; another tracker's points must lie on the frames
+    ("tracks_size", "tracks.npz: the tracks were made on 256x192 frames, this video's are 128x96"),
+    ("tracks_extent", "tracks.npz: 100% of the visible track points lie outside the 128x96 frames"),
+])
+def test_inputs_of_another_video_refused(tiny_scene, tmp_path, capsys, case, needle):
+    """Depth, masks, intrinsics and tracks that belong to frames of another size or orientation: one line naming the
+    file and the problem, before any work, no result (they ran to the end before, on smeared or shifted inputs)."""
+    inp = tiny_scene / "input"
+    depth = np.load(inp / "depth.npy")
+    masks = np.stack([iio.imread(f) > 0 for f in sorted((inp / "masks").glob("*.png"))])
+    given = {"--depth": str(inp / "depth.npy"), "--masks": str(inp / "masks"),
+             "--intrinsics": str(inp / "intrinsics.txt")}
+    if case == "depth_T":
+        np.save(tmp_path / "depth.npy", depth.transpose(0, 2, 1))
+        given["--depth"] = str(tmp_path / "depth.npy")
+    elif case == "masks_T":
+        np.save(tmp_path / "masks.npy", masks.transpose(0, 2, 1))
+        given["--masks"] = str(tmp_path / "masks.npy")
+    elif case == "depth_mm":
+        np.save(tmp_path / "depth.npy", (depth * 1000).astype(np.uint16))
+        given["--depth"] = str(tmp_path / "depth.npy")
+    elif case == "intrinsics":
+        given["--intrinsics"] = "100,100,640,48"
+    else:
+        T = depth.shape[0]
+        uv = np.random.default_rng(0).uniform(0, 90, (40, T, 2))
+        if case == "tracks_size":
+            np.savez(tmp_path / "tracks.npz", tracks=uv, visible=np.ones((40, T), bool), size=np.array([256, 192]))
+        else:  # CoTracker's layout [T,N,2], its points on frames 4x as large
+            np.savez(tmp_path / "tracks.npz", tracks=(uv * 4 + 200).transpose(1, 0, 2), visibility=np.ones((T, 40)))
+        given["--tracks"] = str(tmp_path / "tracks.npz")
+    rc = main(["run", str(inp / "frames"), "--out", str(tmp_path / "o"), "--quiet",
+               *[x for kv in given.items() for x in kv]])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and needle in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o" / "result.npz").exists()
+
+
+def test_prior_of_another_aspect_ratio_warned_and_stretched(tiny_scene, tmp_path):
+    """A depth map of another aspect ratio is stretched to the frames (right for a model run on squeezed frames),
+    with a warning naming the file; one of the frames' aspect ratio at another size is resized without a word."""
+    import warnings
+
+    from trackingworld.config import InputConfig
+    from trackingworld.pipeline.inputs import load_inputs
+
+    inp = tiny_scene / "input"
+    depth = np.load(inp / "depth.npy")
+    np.save(tmp_path / "crop.npy", depth[:, 10:-10])  # 128x76: cropped
+    np.save(tmp_path / "half.npy", depth[:, ::2, ::2])  # 64x48: the frames' aspect ratio
+    with pytest.warns(RuntimeWarning, match="crop.npy: depth of 128x76 px, another aspect ratio than the 128x96"):
+        got = load_inputs(InputConfig(input=str(inp / "frames"), depth=str(tmp_path / "crop.npy")), verbose=False)
+    assert got.depth.shape == depth.shape
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = load_inputs(InputConfig(input=str(inp / "frames"), depth=str(tmp_path / "half.npy")), verbose=False)
+    assert got.depth.shape == depth.shape
+
+
 @pytest.mark.parametrize("args,needle", [
     (["run", "{frames}", "--out", "{out}", "--resize", "-5"], "argument --resize: must be >= 32, got '-5'"),
     (["run", "{frames}", "--out", "{out}", "--max-frames", "0"], "argument --max-frames: must be >= 1, got '0'"),

@@ -240,6 +240,7 @@ def test_track2d_cli(tiny_scene, tmp_path):
                  "--max-frames", "4"]) == 0
     z = np.load(out)
     assert z["tracks"].shape[1] == 4 and z["visible"].dtype == bool and z["queries"].shape[1] == 3
+    assert z["size"].tolist() == [128, 96]  # the frames' (W, H), which a run on the file checks
     # the file is a tracks file for --tracks as it is: the same tracks, visibility and queries come back
     back = load_tracks(out, 4)
     vis = z["visible"]

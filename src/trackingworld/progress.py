@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 
 class Progress:
@@ -33,3 +34,14 @@ def stage_logger(enabled: bool = True, every: int = 1):
             print(f"[{stage}] iter {it} loss {loss:.6g}", file=sys.stderr, flush=True)
 
     return log
+
+
+def warn(message: str | None, verbose: bool, label: str = "run") -> None:
+    """A warning (nothing for None): a ``[label] warning: ...`` line on stderr when ``verbose``, else through
+    :mod:`warnings` (which a quiet run still shows once, and a library caller can filter)."""
+    if message is None:
+        return
+    if verbose:
+        print(f"[{label}] warning: {message}", file=sys.stderr, flush=True)
+    else:
+        warnings.warn(message, RuntimeWarning, stacklevel=3)

@@ -293,7 +293,7 @@ def cmd_track2d(a) -> int:
     q = tr.queries.copy()
     q[:, 1:] = inp.to_input_pixels(tr.queries[:, 1:])
     write_npz(a.out, tracks=inp.to_input_pixels(tr.tracks), visible=tr.visible,
-              confidence=tr.confidence.astype(np.float16), queries=q)
+              confidence=tr.confidence.astype(np.float16), queries=q, size=np.array(inp.size_in))
     print(f"{len(tr.queries)} tracks x {tr.visible.shape[1]} frames written to {a.out}")
     return 0
 

@@ -42,6 +42,9 @@ def load_depth(path: str | os.PathLike, T: int, stride: int = 1) -> np.ndarray:
         if path.suffix not in (".npy", ".npz"):
             raise InputError(f"{path}: depth must be .npy, .npz or a folder of 16-bit PNGs")
         depth = read_array(path, "depth", "depth")
+        if not np.issubdtype(depth.dtype, np.floating):  # millimetres in an integer array? not guessed
+            raise InputError(f"{path}: depth holds {depth.dtype} numbers; give float metres (or a folder of 16-bit "
+                             f"PNGs in millimetres)")
         if depth.ndim == 4 and depth.shape[1] == 1:
             depth = depth[:, 0]
         if depth.ndim != 3:
@@ -110,6 +113,33 @@ def parse_intrinsics(spec: str | os.PathLike) -> np.ndarray:
     return K
 
 
-def check_prior_size(arr: np.ndarray, H: int, W: int, path, what: str) -> None:
-    if arr.shape[1:] != (H, W):
-        raise InputError(f"{path}: {what} is {arr.shape[2]}x{arr.shape[1]}, video frames are {W}x{H}")
+# how far a prior's width / height may differ from the frames' and be stretched to them without a word: a depth
+# model's output rounded to its patch size (854x480 frames, 518x294 depth: 1.0%)
+ASPECT_TOLERANCE = 0.02
+
+
+def prior_fit(shape: tuple[int, ...], W: int, H: int, path, what: str) -> str | None:
+    """How a prior of ``shape [T,Hp,Wp]`` (depth maps, masks) goes onto frames of W x H px: None where it has their
+    size or their aspect ratio (resized); a warning (str) where its aspect ratio differs by more than
+    :data:`ASPECT_TOLERANCE` (stretched to fit: right for a model run on frames squeezed to its own size, wrong for
+    a crop or a pad); InputError where its height and width are the frames' swapped (a rotated or transposed array,
+    which a resize would smear over the frames)."""
+    Hp, Wp = shape[-2:]
+    if (Hp, Wp) == (H, W):
+        return None
+    if (Hp, Wp) == (W, H):
+        raise InputError(f"{path}: {what} of {Wp}x{Hp} px for frames of {W}x{H}: height and width swapped (a rotated "
+                         f"or transposed array?)")
+    if abs(np.log((Wp / Hp) / (W / H))) > np.log1p(ASPECT_TOLERANCE):
+        return (f"{path}: {what} of {Wp}x{Hp} px, another aspect ratio than the {W}x{H} frames' ({Wp / Hp:.3f} against "
+                f"{W / H:.3f}): stretched to fit them; if it was cropped or padded, its pixels are misplaced")
+    return None
+
+
+def check_principal_point(K: np.ndarray, W: int, H: int, src) -> None:
+    """InputError where the principal point of ``K [3,3]`` lies outside the frames of W x H px: intrinsics of another
+    resolution (a calibration of the full-size video given for a smaller one), which would bend every ray."""
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if not (0 <= cx <= W and 0 <= cy <= H):
+        raise InputError(f"{src}: the principal point ({cx:g}, {cy:g}) px lies outside the {W}x{H} frames: "
+                         f"intrinsics of another resolution? Give them for the video's own size")

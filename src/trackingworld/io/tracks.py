@@ -24,8 +24,17 @@ from trackingworld.errors import InputError
 from trackingworld.io.arrays import read_arrays
 from trackingworld.tracking2d.base import TrackResult, hold_invisible
 
+# a tracks file's visible points may lie outside the frames (a tracker's points at the border): by at most this
+# share of the frames' side, for all but OUTSIDE_SHARE of them, before the file is taken for another resolution's
+OUTSIDE_MARGIN = 0.1
+OUTSIDE_SHARE = 0.01
 
-def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
+
+def load_tracks(path: str | os.PathLike | None, T: int, size: tuple[int, int] | None = None) -> TrackResult:
+    """A tracks file (``trackingworld track2d``'s, CoTracker's, TAPNet's) for a video of ``T`` frames of ``size``
+    (W, H) px (None: not checked): InputError where it does not fit them, one line naming the file. A file of
+    ``track2d`` records its frames' size and must match it; another tracker's must keep its visible points on the
+    frames (:data:`OUTSIDE_MARGIN`, :data:`OUTSIDE_SHARE`)."""
     if path is None:
         raise InputError("--tracker file needs --tracks FILE")
     path = Path(path)
@@ -55,6 +64,8 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
         raise InputError(f"{path}: tracks {tracks.shape} and visibility {vis.shape} do not match")
     if tracks.shape[1] != T:
         raise InputError(f"{path}: tracks cover {tracks.shape[1]} frames, the video has {T}")
+    if size is not None:
+        _check_size(path, d.get("size"), tracks, vis, size)
     if queries is None:
         t0 = np.where(vis.any(1), vis.argmax(1), 0)
         queries = np.concatenate([t0[:, None], tracks[np.arange(len(t0)), t0]], 1)
@@ -62,3 +73,23 @@ def load_tracks(path: str | os.PathLike | None, T: int) -> TrackResult:
     vis = vis.astype(bool)
     tracks = hold_invisible(tracks, vis)
     return TrackResult(tracks, vis, vis.astype(np.float16), queries.astype(np.float32))  # confidence: not read
+
+
+def _check_size(path, made_on, tracks: np.ndarray, vis: np.ndarray, size: tuple[int, int]) -> None:
+    """InputError where the tracks ``[N,T,2]`` (seen where ``vis [N,T]``) belong to frames of another size than
+    ``size`` (W, H): ``made_on`` the (W, H) the file records (track2d's), else the extent of its visible points."""
+    W, H = size
+    if made_on is not None:
+        w, h = (int(v) for v in np.asarray(made_on).reshape(-1)[:2])
+        if (w, h) != (W, H):
+            raise InputError(f"{path}: the tracks were made on {w}x{h} frames, this video's are {W}x{H}")
+        return
+    seen = tracks[vis]
+    if not len(seen):
+        return
+    mx, my = OUTSIDE_MARGIN * W, OUTSIDE_MARGIN * H
+    out = ((seen[:, 0] < -mx) | (seen[:, 0] > W - 1 + mx) | (seen[:, 1] < -my) | (seen[:, 1] > H - 1 + my))
+    if out.mean() > OUTSIDE_SHARE:
+        x1, y1 = np.percentile(seen, 99, axis=0)
+        raise InputError(f"{path}: {100 * out.mean():.0f}% of the visible track points lie outside the {W}x{H} frames "
+                         f"(99th percentile x {x1:.0f}, y {y1:.0f} px): tracks of another resolution?")

@@ -12,8 +12,16 @@ from trackingworld.config import InputConfig
 from trackingworld.errors import InputError
 from trackingworld.geometry import default_intrinsics, scale_intrinsics
 from trackingworld.io.frames import read_frames
-from trackingworld.io.priors import fill_invalid_depth, load_depth, load_masks, parse_intrinsics
+from trackingworld.io.priors import (
+    check_principal_point,
+    fill_invalid_depth,
+    load_depth,
+    load_masks,
+    parse_intrinsics,
+    prior_fit,
+)
 from trackingworld.priors.sources import depth_source, intrinsics_given, mask_source
+from trackingworld.progress import warn
 
 
 @dataclass
@@ -68,16 +76,17 @@ def load_inputs(cfg: InputConfig, verbose: bool = True) -> Inputs:
     depth = None
     if depth_source(cfg.depth) == "file":
         depth = load_depth(cfg.depth, T, cfg.frame_stride)
-        if depth.shape[1:] != (H, W):  # depth models often predict at their own size
-            depth = resize_stack(depth, W, H, cv2.INTER_LINEAR)
-        depth = fill_invalid_depth(depth)
+        # depth models often predict at their own size: resized, but not a rotated array
+        warn(prior_fit(depth.shape, W, H, cfg.depth, "depth"), verbose, "inputs")
+        depth = fill_invalid_depth(resize_stack(depth, W, H, cv2.INTER_LINEAR))
     masks = np.zeros((T, H, W), bool)
     if mask_source(cfg.masks) == "file":
         masks = load_masks(cfg.masks, T, cfg.frame_stride)
-        if masks.shape[1:] != (H, W):
-            masks = resize_stack(masks.astype(np.uint8), W, H, cv2.INTER_NEAREST) > 0
+        warn(prior_fit(masks.shape, W, H, cfg.masks, "masks"), verbose, "inputs")
+        masks = resize_stack(masks.astype(np.uint8), W, H, cv2.INTER_NEAREST) > 0
     if intrinsics_given(cfg.intrinsics):
         K_in = parse_intrinsics(cfg.intrinsics)
+        check_principal_point(K_in, W, H, cfg.intrinsics)
     else:  # the priors may replace it (a depth model's focal length)
         K_in = default_intrinsics(W, H, cfg.default_fov_deg)
     w, h = W, H

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ from trackingworld.pipeline.inputs import Inputs, load_inputs
 from trackingworld.pipeline.tracks import check_track2d, track_video
 from trackingworld.pipeline.world import check_optim, run_trackingworld
 from trackingworld.priors.resolve import resolve_priors, tracks_key
+from trackingworld.progress import warn
 from trackingworld.reproducible import environment, ipp_off
 from trackingworld.tracking2d.base import TrackResult
 
@@ -49,16 +49,6 @@ def dense_tracks(inp: Inputs, cfg: RunConfig, cache_dir: Path | None, key: dict,
     return TrackResult(z["tracks"], z["visible"], z["confidence"], z["queries"])
 
 
-def _warn(message: str | None, verbose: bool) -> None:
-    """A warning on stderr (verbose) or through :mod:`warnings`."""
-    if message is None:
-        return
-    if verbose:
-        print(f"[run] warning: {message}", file=sys.stderr, flush=True)
-    else:
-        warnings.warn(message, RuntimeWarning, stacklevel=3)
-
-
 def check_run(cfg: RunConfig) -> None:
     """The settings that need no input: InputError on one line before any work (also once for a whole batch)."""
     if cfg.method not in METHODS:
@@ -85,11 +75,11 @@ def run(cfg: RunConfig, out_dir: str | Path, verbose: bool = True) -> Result:
     cache_dir = out_dir / PRIORS_DIR if cfg.inputs.cache else None
     T, H, W = inp.frames.shape[:3]
     if cfg.track2d.tracker != "file":  # a guess of the tracks, before the minutes of 2D tracking
-        _warn(memory_warning(guess_tracks(H, W, T), T, guessed=True), verbose)
+        warn(memory_warning(guess_tracks(H, W, T), T, guessed=True), verbose)
     key = tracks_key(cfg, W, H)  # once: it hashes the input (io.cache.content_identity), which both caches key on
     tr = dense_tracks(inp, cfg, cache_dir, key, timings, verbose)
     release_freed_memory()  # the tracker's temporaries (trackingworld.memory)
-    _warn(memory_warning(tr.tracks.shape[0], T), verbose)
+    warn(memory_warning(tr.tracks.shape[0], T), verbose)
     t1 = time.perf_counter()
     inp, pinfo = resolve_priors(inp, tr, cfg, cache_dir, verbose, key)
     timings["priors"] = time.perf_counter() - t1

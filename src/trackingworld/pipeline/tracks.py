@@ -55,7 +55,7 @@ def track_video(frames: np.ndarray, cfg: Track2DConfig, timings: dict | None = N
     if cfg.tracker == "file":
         from trackingworld.io.tracks import load_tracks
 
-        res = load_tracks(cfg.tracks_file, frames.shape[0])
+        res = load_tracks(cfg.tracks_file, frames.shape[0], (frames.shape[2], frames.shape[1]))
     else:
         dense = DenseTracker(make_tracker(cfg, verbose, device), DenseConfig(
             stride=cfg.grid_stride, query_stride=cfg.query_stride, first_frame_only=cfg.first_frame_only,
