@@ -380,6 +380,48 @@ def test_depth_mover_test_and_refit_are_off_without_a_depth_prior(tiny_scene, tm
     assert "[depth_movers] off, [static_refit] off: --depth none" in capsys.readouterr().err
 
 
+def test_depth_detail_of_each_prior_and_the_steps_it_turns_off():
+    """An SfM depth from a pair whose epipolar error is a large share of its parallax (dog.mp4: 1.03 px against
+    2.38 px) is too coarse for the depth-discrepancy test, which then flagged the ground and the fence as movers;
+    the synthetic scenes' SfM pairs (0.03-0.05) keep it. A constant prior turns off the refit too."""
+    from trackingworld.config import OptimConfig
+    from trackingworld.pipeline.world import prior_limits
+    from trackingworld.priors.resolve import SFM_COARSE, depth_detail
+
+    dog = {"ok": True, "epipolar_px": 1.0267, "parallax_px": 2.3841}
+    synthetic = {"ok": True, "epipolar_px": 0.2213, "parallax_px": 4.1125}
+    assert depth_detail("file", None) == ("full", "") and depth_detail("model", None) == ("full", "")
+    assert depth_detail("sfm", synthetic) == ("full", "")
+    detail, why = depth_detail("sfm", dog)
+    assert detail == "coarse" and "about 43% (1.03 px of epipolar error against 2.38 px of parallax)" in why
+    assert depth_detail("sfm", {**dog, "epipolar_px": SFM_COARSE * dog["parallax_px"]})[0] == "full"  # at the bound
+    assert depth_detail("sfm", {"ok": False})[0] == depth_detail("none", None)[0] == "constant"
+    assert depth_detail("sfm", {"ok": True, "epipolar_px": None, "parallax_px": None})[0] == "full"  # an old cache
+    cfg = OptimConfig()
+    assert prior_limits(cfg, "full") == (cfg, [])
+    coarse, off = prior_limits(cfg, "coarse")
+    assert off == ["depth_movers"] and coarse.depth_mover_log == 0 and coarse.static_refit_dc == cfg.static_refit_dc
+    flat, off = prior_limits(cfg, "constant")
+    assert off == ["depth_movers", "static_refit"] and flat.depth_mover_log == flat.static_refit_dc == 0
+    assert prior_limits(flat, "constant") == (flat, [])  # already off: nothing to say
+
+
+def test_sfm_without_parallax_runs_as_depth_none(tiny_scene, tmp_path):
+    """The tiny scene's camera moves too little for SfM (1.3 px of parallax, under its 2 px): its constant depth turns
+    off the depth-discrepancy test and the static refit as --depth none does (before, both ran on the constant),
+    and optim.json says why."""
+    inp = tiny_scene / "input"
+    out = tmp_path / "x"
+    assert main(["run", str(inp / "frames"), "--masks", str(inp / "masks"), "--intrinsics",
+                 str(inp / "intrinsics.txt"), "--out", str(out), "--quiet"]) == 0
+    assert not json.loads((out / "priors.json").read_text())["sfm"]["ok"]
+    timings = json.loads((out / "timings.json").read_text())
+    assert "depth_movers" not in timings and "static_refit" not in timings and "stage3" in timings
+    report = json.loads((out / "optim.json").read_text())["off_for_the_prior"]
+    assert report == {"steps": ["depth_movers", "static_refit"],
+                      "why": "the SfM depth is constant (no parallax to triangulate from)"}
+
+
 def _dense_step(Hcc, Hxx, Hcx, gc, gx, fb, p, free):
     """The damping-free Gauss-Newton step of the full system (poses, points, focal), solved densely."""
     T, N = p.n_frames, p.n_points

@@ -30,7 +30,8 @@ class Inputs:
 
     frames [T,h,w,3] uint8; depth [T,h,w] float32 metres (None until the priors are resolved, unless a file
     was given); masks [T,h,w] bool (all False until resolved, unless a file was given);
-    K [3,3] at the processing resolution; size_in (W, H) of the input frames.
+    K [3,3] at the processing resolution; size_in (W, H) of the input frames; depth_detail / depth_note what the
+    depth prior can tell the lifting (:func:`trackingworld.priors.resolve.depth_detail`).
     """
 
     frames: np.ndarray
@@ -40,6 +41,10 @@ class Inputs:
     size_in: tuple[int, int]
     K_in: np.ndarray
     fps: float | None = None
+    # what the depth prior can tell apart (priors.resolve.depth_detail): "full"; "coarse", an SfM depth from too little
+    # parallax for the depth-discrepancy test; "constant", no depth at all (--depth none, or SfM without parallax)
+    depth_detail: str = "full"
+    depth_note: str = ""  # why it is not "full", in words
 
     @property
     def scale(self) -> tuple[float, float]:

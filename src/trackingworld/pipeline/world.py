@@ -50,7 +50,7 @@ from trackingworld.pipeline.static_side import (
     vote_short_tracks,
 )
 from trackingworld.pipeline.video_depth import SearchAhead, video_depth
-from trackingworld.priors.sources import depth_source, intrinsics_given
+from trackingworld.priors.sources import intrinsics_given
 from trackingworld.progress import stage_logger
 from trackingworld.tracking2d.base import TrackResult
 
@@ -385,6 +385,23 @@ def check_optim(o: OptimConfig) -> None:
                          "weights and the cell are 0 or more")
 
 
+def prior_limits(cfg: OptimConfig, detail: str) -> tuple[OptimConfig, list[str]]:
+    """``cfg`` with the steps off that a depth prior of ``detail`` (:attr:`Inputs.depth_detail`) cannot feed, and
+    their names. A constant prior ("constant") says nothing about depth: the depth-discrepancy test would flag every
+    static object that stands out from the smooth field (seed 0: 1,366 tracks, static kept 93.4 -> 92.5), and the
+    refit would flatten the static points onto that field. A coarse one (an SfM depth from little parallax) leaves
+    the refit, which the static points' own parallax outweighs where it is strong, but its regional errors read
+    as movers to the depth-discrepancy test (priors.resolve.SFM_COARSE)."""
+    off = []
+    if detail in ("constant", "coarse") and cfg.depth_mover_log > 0:
+        cfg = replace(cfg, depth_mover_log=0.0)
+        off.append("depth_movers")
+    if detail == "constant" and cfg.static_refit_dc > 0:
+        cfg = replace(cfg, static_refit_dc=0.0)
+        off.append("static_refit")
+    return cfg, off
+
+
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
                       report: dict | None = None) -> Result:
     """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`. ``report``
@@ -395,20 +412,16 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     check_optim(cfg.optim)
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
-    optim_cfg = cfg.optim
-    if depth_source(cfg.inputs.depth) == "none" and (optim_cfg.depth_mover_log > 0 or optim_cfg.static_refit_dc > 0):
-        # a constant prior says nothing about depth: the depth-discrepancy test would flag every static object
-        # that stands out from the smooth field (seed 0: 1,366 tracks, static kept 93.4 -> 92.5), and the refit
-        # would flatten the static points onto that field
-        optim_cfg = replace(optim_cfg, depth_mover_log=0.0, static_refit_dc=0.0)
-        if optim_cfg.verbose:
-            print("[depth_movers] off, [static_refit] off: --depth none gives no depth to compare with",
-                  file=sys.stderr, flush=True)
+    optim_cfg, off = prior_limits(cfg.optim, inp.depth_detail)
+    if off and optim_cfg.verbose:
+        print(f"{', '.join(f'[{o}] off' for o in off)}: {inp.depth_note}", file=sys.stderr, flush=True)
     colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the short tracks
     out = optimise(tr, inp.depth, inp.masks, inp.K, optim_cfg, timings, cfg.device, cfg.seed, refine, colors,
                    inp.frames)
     if report is not None:
         report.update(out["info"])
+        if off:
+            report["off_for_the_prior"] = {"steps": off, "why": inp.depth_note}
     K_in = inp.K_in.copy()
     K_in[0, 0] *= out["K"][0, 0] / inp.K[0, 0]
     K_in[1, 1] *= out["K"][1, 1] / inp.K[1, 1]

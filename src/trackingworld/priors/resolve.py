@@ -55,6 +55,35 @@ class PriorInfo:
     focal: dict = field(default_factory=dict)
 
 
+# the depth-discrepancy test (optim.depth_movers) tells a mover by a few percent of disagreement between a static
+# fit's depth and the prior, region by region. An SfM depth is as precise as the parallax it was triangulated from:
+# about the starting pair's epipolar error over its parallax. Above this share the test compares noise with noise:
+# on dog.mp4 (a hand-held pan, 2.4 px of parallax against 1.0 px of epipolar error: 0.43) it turned 89,521 tracks
+# of the ground and the fence dynamic (27% of the tracks dynamic against 16% without it); the synthetic scenes'
+# SfM depth comes from pairs at 0.03-0.05 (stop 89, docs/priors.md)
+SFM_COARSE = 0.2
+
+
+def depth_detail(source: str, sfm: dict | None) -> tuple[str, str]:
+    """(detail, why) of a depth prior from ``source`` (:func:`~trackingworld.priors.sources.depth_source`: file,
+    model, sfm, none), ``sfm`` the SfM's figures (``PriorInfo.sfm``) where its depth is the prior: "full"; "coarse",
+    an SfM depth whose starting pair's epipolar error exceeds :data:`SFM_COARSE` of its parallax; "constant", no
+    depth (``--depth none``, or SfM that found no parallax). The lifting turns off what such a prior cannot feed
+    (``pipeline.world.run_trackingworld``)."""
+    if source == "none":
+        return "constant", "--depth none gives no depth to compare with"
+    if source != "sfm":
+        return "full", ""
+    sfm = sfm or {}
+    if not sfm.get("ok"):
+        return "constant", "the SfM depth is constant (no parallax to triangulate from)"
+    e, p = sfm.get("epipolar_px"), sfm.get("parallax_px")
+    if e is not None and p and e / p > SFM_COARSE:
+        return "coarse", (f"the SfM depth holds to about {e / p:.0%} ({e:.2f} px of epipolar error against {p:.2f} px "
+                          f"of parallax), too coarse to tell movers by")
+    return "full", ""
+
+
 def _say(info: PriorInfo, msg: str, verbose: bool) -> None:
     info.messages.append(msg)
     if verbose:
@@ -207,4 +236,6 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
         raise InputError(f"{ic.depth}: no usable depth")
     W, H = inp.size_in
     K_in = inp.K_in if K_given else scale_intrinsics(K, W / w, H / h)
-    return replace(inp, depth=depth.astype(np.float32), masks=masks, K=K, K_in=K_in), info
+    detail, why = depth_detail(dsrc, info.sfm if dsrc == "sfm" else None)
+    return replace(inp, depth=depth.astype(np.float32), masks=masks, K=K, K_in=K_in, depth_detail=detail,
+                   depth_note=why), info
