@@ -59,8 +59,8 @@ class PriorInfo:
 # fit's depth and the prior, region by region. An SfM depth is as precise as the parallax it was triangulated from:
 # about the starting pair's epipolar error over its parallax. Above this share the test compares noise with noise:
 # on dog.mp4 (a hand-held pan, 2.4 px of parallax against 1.0 px of epipolar error: 0.43) it turned 89,521 tracks
-# of the ground and the fence dynamic (27% of the tracks dynamic against 16% without it); the synthetic scenes'
-# SfM depth comes from pairs at 0.03-0.05 (stop 89, docs/priors.md)
+# of the ground and the fence dynamic (27% of the tracks dynamic against 16% without it); eight synthetic scenes'
+# SfM pairs lie at 0.007-0.151, where the test is the trade it is with a given prior (stop 89, docs/priors.md)
 SFM_COARSE = 0.2
 
 
@@ -69,7 +69,7 @@ def depth_detail(source: str, sfm: dict | None) -> tuple[str, str]:
     model, sfm, none), ``sfm`` the SfM's figures (``PriorInfo.sfm``) where its depth is the prior: "full"; "coarse",
     an SfM depth whose starting pair's epipolar error exceeds :data:`SFM_COARSE` of its parallax; "constant", no
     depth (``--depth none``, or SfM that found no parallax). The lifting turns off what such a prior cannot feed
-    (``pipeline.world.run_trackingworld``)."""
+    (:func:`trackingworld.pipeline.world.prior_limits`)."""
     if source == "none":
         return "constant", "--depth none gives no depth to compare with"
     if source != "sfm":
