@@ -380,30 +380,40 @@ def test_depth_mover_test_and_refit_are_off_without_a_depth_prior(tiny_scene, tm
     assert "[depth_movers] off, [static_refit] off: --depth none" in capsys.readouterr().err
 
 
-def test_depth_detail_of_each_prior_and_the_steps_it_turns_off():
-    """An SfM depth from a pair whose epipolar error is a large share of its parallax (dog.mp4: 1.03 px against
-    2.38 px) is too coarse for the depth-discrepancy test, which then flagged the ground and the fence as movers;
-    the synthetic scenes' SfM pairs (0.03-0.05) keep it. A constant prior turns off the refit too."""
+def test_depth_detail_of_each_prior_and_what_the_lifting_asks_of_it():
+    """A given prior keeps the settings; an estimated one (SfM, a depth model) caps the depth-discrepancy test's
+    flags; a constant one (--depth none, SfM without parallax) turns the test and the static refit off."""
     from trackingworld.config import OptimConfig
-    from trackingworld.pipeline.world import prior_limits
-    from trackingworld.priors.resolve import SFM_COARSE, depth_detail
+    from trackingworld.pipeline.world import ESTIMATED_MOVER_SHARE, prior_limits
+    from trackingworld.priors.resolve import depth_detail
 
-    dog = {"ok": True, "epipolar_px": 1.0267, "parallax_px": 2.3841}
-    synthetic = {"ok": True, "epipolar_px": 0.2213, "parallax_px": 4.1125}
-    assert depth_detail("file", None) == ("full", "") and depth_detail("model", None) == ("full", "")
-    assert depth_detail("sfm", synthetic) == ("full", "")
-    detail, why = depth_detail("sfm", dog)
-    assert detail == "coarse" and "about 43% (1.03 px of epipolar error against 2.38 px of parallax)" in why
-    assert depth_detail("sfm", {**dog, "epipolar_px": SFM_COARSE * dog["parallax_px"]})[0] == "full"  # at the bound
+    assert depth_detail("file", None) == ("given", "")
+    assert depth_detail("model", None) == depth_detail("sfm", {"ok": True}) == ("estimated", "")
     assert depth_detail("sfm", {"ok": False})[0] == depth_detail("none", None)[0] == "constant"
-    assert depth_detail("sfm", {"ok": True, "epipolar_px": None, "parallax_px": None})[0] == "full"  # an old cache
     cfg = OptimConfig()
-    assert prior_limits(cfg, "full") == (cfg, [])
-    coarse, off = prior_limits(cfg, "coarse")
-    assert off == ["depth_movers"] and coarse.depth_mover_log == 0 and coarse.static_refit_dc == cfg.static_refit_dc
+    assert prior_limits(cfg, "given") == (cfg, [])
+    est, off = prior_limits(cfg, "estimated")
+    assert off == [] and est == replace(cfg, depth_mover_max_share=ESTIMATED_MOVER_SHARE)
+    mine = replace(cfg, depth_mover_max_share=0.5)  # a cap the user set stays
+    assert prior_limits(mine, "estimated") == (mine, [])
     flat, off = prior_limits(cfg, "constant")
     assert off == ["depth_movers", "static_refit"] and flat.depth_mover_log == flat.static_refit_dc == 0
     assert prior_limits(flat, "constant") == (flat, [])  # already off: nothing to say
+
+
+def test_depth_mover_flags_over_the_cap_are_dropped(tiny_scene, tmp_path):
+    """The depth-discrepancy test's flags, more than --depth-mover-max-share of the tracks it tests, are dropped
+    (a prior wrong over much of the scene: dog.mp4's SfM depth, 13.6%), and optim.json says how many."""
+    inp = tiny_scene / "input"
+    args = ["run", str(inp / "frames"), "--depth", str(inp / "depth.npy"), "--masks", str(inp / "masks"),
+            "--intrinsics", str(inp / "intrinsics.txt"), "--max-frames", "6", "--quiet", "--depth-mover", "0.005"]
+    assert main([*args, "--out", str(tmp_path / "free")]) == 0  # a threshold low enough to flag some tracks
+    free = json.loads((tmp_path / "free" / "optim.json").read_text())
+    assert free["depth_movers"] > 0 and "depth_movers_dropped" not in free
+    assert main([*args, "--out", str(tmp_path / "capped"), "--depth-mover-max-share", "1e-6"]) == 0
+    capped = json.loads((tmp_path / "capped" / "optim.json").read_text())
+    assert capped["depth_movers"] == 0 and capped["depth_movers_dropped"]["flagged"] == free["depth_movers"]
+    assert "depth_movers" not in capped["label_steps"] or capped["label_steps"]["depth_movers"]["dynamic"] == 0
 
 
 def test_sfm_without_parallax_runs_as_depth_none(tiny_scene, tmp_path):

@@ -152,6 +152,13 @@ class OptimConfig:
     # beside depth edges movers: `hard` 0 lost 2.0 points of static kept to the test, two thirds of them within
     # 3 px of an edge (docs/lifting.md, item 5)
     depth_mover_range_px: int | None = None
+    # (not in the paper) the test's flags dropped when they are more than this share of the tracks it tests: a prior
+    # that disagrees with the static fits over that much of the scene is wrong there, not crossed by movers (0: no
+    # cap). Off for a given prior (the synthetic scenes' flag 0.2-4.4% of their candidates, `default` 0's unmasked
+    # mover among them); a run on an estimated prior (SfM, a depth model) sets it to
+    # pipeline.world.ESTIMATED_MOVER_SHARE: on dog.mp4's SfM depth the test flagged 13.6% of the static tracks, the
+    # ground and the fence (stop 89, docs/priors.md)
+    depth_mover_max_share: float = 0.0
     # stage 3: dynamic objects
     lambda_arap: float = 100.0
     lambda_ts: float = 10.0

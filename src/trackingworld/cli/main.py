@@ -409,6 +409,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--depth-mover-mad", type=float, default=d.depth_mover_mad, metavar="K",
                    help="(not in the paper) the depth-discrepancy test's threshold raised to K times the median "
                         "absolute deviation of the discrepancies when that is larger (0: the fixed threshold)")
+    g.add_argument("--depth-mover-max-share", type=float, default=d.depth_mover_max_share, metavar="SHARE",
+                   help="(not in the paper) the depth-discrepancy test's flags dropped when they are more than this "
+                        "share of the tracks it tests: the prior is then wrong over much of the scene (0: no cap, "
+                        "the default for a given prior; an estimated one, SfM or a depth model, gets 0.08)")
     g.add_argument("--depth-mover-rounds", type=int, default=d.depth_mover_rounds, metavar="N",
                    help="rounds of that test, each against the frames' fields fitted again without the movers and "
                         "suspects the last round found")
@@ -540,6 +544,7 @@ def _optim_config(a):
         static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
         depth_mover_rounds=a.depth_mover_rounds, depth_mover_mad=a.depth_mover_mad,
+        depth_mover_max_share=a.depth_mover_max_share,
         depth_mover_suspect=a.depth_mover_suspect,
         depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,

@@ -41,10 +41,10 @@ class Inputs:
     size_in: tuple[int, int]
     K_in: np.ndarray
     fps: float | None = None
-    # what the depth prior can tell apart (priors.resolve.depth_detail): "full"; "coarse", an SfM depth from too little
-    # parallax for the depth-discrepancy test; "constant", no depth at all (--depth none, or SfM without parallax)
-    depth_detail: str = "full"
-    depth_note: str = ""  # why it is not "full", in words
+    # where the depth prior comes from, for what the lifting asks of it (priors.resolve.depth_detail): "given" (a
+    # file); "estimated" (SfM, a depth model); "constant", no depth at all (--depth none, or SfM without parallax)
+    depth_detail: str = "given"
+    depth_note: str = ""  # why it is "constant", in words
 
     @property
     def scale(self) -> tuple[float, float]:

@@ -55,33 +55,18 @@ class PriorInfo:
     focal: dict = field(default_factory=dict)
 
 
-# the depth-discrepancy test (optim.depth_movers) tells a mover by a few percent of disagreement between a static
-# fit's depth and the prior, region by region. An SfM depth is as precise as the parallax it was triangulated from:
-# about the starting pair's epipolar error over its parallax. Above this share the test compares noise with noise:
-# on dog.mp4 (a hand-held pan, 2.4 px of parallax against 1.0 px of epipolar error: 0.43) it turned 89,521 tracks
-# of the ground and the fence dynamic (27% of the tracks dynamic against 16% without it); eight synthetic scenes'
-# SfM pairs lie at 0.007-0.151, where the test is the trade it is with a given prior (stop 89, docs/priors.md)
-SFM_COARSE = 0.2
-
-
 def depth_detail(source: str, sfm: dict | None) -> tuple[str, str]:
     """(detail, why) of a depth prior from ``source`` (:func:`~trackingworld.priors.sources.depth_source`: file,
-    model, sfm, none), ``sfm`` the SfM's figures (``PriorInfo.sfm``) where its depth is the prior: "full"; "coarse",
-    an SfM depth whose starting pair's epipolar error exceeds :data:`SFM_COARSE` of its parallax; "constant", no
-    depth (``--depth none``, or SfM that found no parallax). The lifting turns off what such a prior cannot feed
-    (:func:`trackingworld.pipeline.world.prior_limits`)."""
+    model, sfm, none), ``sfm`` the SfM's figures (``PriorInfo.sfm``) where its depth is the prior: "given" (a file);
+    "estimated" (SfM, a depth model); "constant", no depth (``--depth none``, or SfM that found no parallax). The
+    lifting turns off, or caps, what such a prior cannot feed (:func:`trackingworld.pipeline.world.prior_limits`)."""
     if source == "none":
         return "constant", "--depth none gives no depth to compare with"
-    if source != "sfm":
-        return "full", ""
-    sfm = sfm or {}
-    if not sfm.get("ok"):
+    if source == "file":
+        return "given", ""
+    if source == "sfm" and not (sfm or {}).get("ok"):
         return "constant", "the SfM depth is constant (no parallax to triangulate from)"
-    e, p = sfm.get("epipolar_px"), sfm.get("parallax_px")
-    if e is not None and p and e / p > SFM_COARSE:
-        return "coarse", (f"the SfM depth holds to about {e / p:.0%} ({e:.2f} px of epipolar error against {p:.2f} px "
-                          f"of parallax), too coarse to tell movers by")
-    return "full", ""
+    return "estimated", ""
 
 
 def _say(info: PriorInfo, msg: str, verbose: bool) -> None:
