@@ -406,7 +406,7 @@ def prior_limits(cfg: OptimConfig, detail: str) -> tuple[OptimConfig, list[str]]
     """``cfg`` with the steps off that a depth prior of ``detail`` (:attr:`Inputs.depth_detail`) cannot feed, and
     their names. A constant prior says nothing about depth: the depth-discrepancy test flags every static object
     that stands out from the smooth field (seed 0 with --depth none: 1,366 tracks, static kept 93.4 -> 92.5; SfM
-    without parallax on slow synthetic pans: static kept 96.05 / 96.28 against 98.00 / 98.06 without the test and
+    without parallax on slow synthetic pans: static kept 96.05 / 96.28 against 98.01 / 98.06 without the test and
     the refit, for +0.9 / +0.1 of bg-mover recall), and the refit would flatten the static points onto that field.
     An estimated one (SfM, a depth model) keeps both, the test's flags capped at ESTIMATED_MOVER_SHARE of the
     tracks it tests (:func:`optimise`)."""
