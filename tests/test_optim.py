@@ -401,6 +401,20 @@ def test_depth_detail_of_each_prior_and_what_the_lifting_asks_of_it():
     assert prior_limits(flat, "constant") == (flat, [])  # already off: nothing to say
 
 
+def test_capped_movers_drops_flags_only_over_the_cap():
+    from trackingworld.pipeline.world import capped_movers
+
+    movers = np.zeros(100, bool)
+    movers[:10] = True  # 10% of the tracks tested
+    for cap, kept in ((0.0, True), (0.1, True), (0.2, True), (0.08, False)):
+        info = {}
+        out = capped_movers(movers, cap, info)
+        assert np.array_equal(out, movers if kept else np.zeros(100, bool))
+        assert ("depth_movers_dropped" not in info) if kept else \
+            info["depth_movers_dropped"] == {"flagged": 10, "tested": 100, "cap": 0.08}
+    assert capped_movers(np.zeros(0, bool), 0.08, {}).shape == (0,)
+
+
 def test_depth_mover_flags_over_the_cap_are_dropped(tiny_scene, tmp_path):
     """The depth-discrepancy test's flags, more than --depth-mover-max-share of the tracks it tests, are dropped
     (a prior wrong over much of the scene: dog.mp4's SfM depth, 13.6%), and optim.json says how many."""

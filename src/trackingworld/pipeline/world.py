@@ -98,6 +98,17 @@ def solve_stage2(R, t, X, p: stage2.BAProblem, cfg: OptimConfig, log=None):
     return sol, p, rejected
 
 
+def capped_movers(movers: np.ndarray, cap: float, info: dict) -> np.ndarray:
+    """The depth-discrepancy test's flags ``movers [n]`` (bool, one per track it tested), or none of them where they
+    are more than ``cap`` of those tracks (0: no cap; ``OptimConfig.depth_mover_max_share``): a prior that disagrees
+    with the static fits over that much of the scene is wrong there, not crossed by movers. What was dropped goes to
+    ``info["depth_movers_dropped"]``."""
+    if len(movers) and 0 < cap < movers.mean():
+        info["depth_movers_dropped"] = {"flagged": int(movers.sum()), "tested": int(len(movers)), "cap": cap}
+        return np.zeros_like(movers)
+    return movers
+
+
 def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarray, cfg: OptimConfig,
              timings: dict, device: str = "cpu", seed: int = 0, refine_focal: bool = False,
              colours: np.ndarray | None = None, frames: np.ndarray | None = None) -> dict:
@@ -238,15 +249,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
             reach = mover_range_px(cfg.depth_mover_range_px, prior, info)
             movers, thinned = depth_mover_test(cand, np.flatnonzero(~dynamic), uv, vis, xyz, D, poses,
                                                prior.shape[1:], replace(cfg, depth_mover_range_px=reach), prior)
-            share = float(movers.mean()) if len(cand) else 0.0
-            if 0 < cfg.depth_mover_max_share < share:  # the prior is wrong over much of the scene: not movers
-                info["depth_movers_dropped"] = {"flagged": int(movers.sum()), "tested": int(len(cand)),
-                                                "cap": cfg.depth_mover_max_share}
-                if cfg.verbose:
-                    print(f"[depth_movers] {int(movers.sum())} of {len(cand)} tracks ({share:.1%}) disagree with the "
-                          f"prior, more than its {cfg.depth_mover_max_share:.0%} cap: the prior is wrong there, "
-                          f"none taken for movers", file=sys.stderr, flush=True)
-                movers = np.zeros_like(movers)
+            movers = capped_movers(movers, cfg.depth_mover_max_share, info)
             dynamic[cand[movers]] = True
             steps.after("depth_movers", dynamic)
             info["depth_movers"] = int(movers.sum())
@@ -255,7 +258,11 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                 blur = info.get("prior_edge_blur_px")
                 how = ("as given" if cfg.depth_mover_range_px is not None else "the prior's edge blur: too few edges"
                        if blur is None else f"the prior's edge blur: {blur:.2f} px")
-                print(f"[depth_movers] {int(movers.sum())} tracks; discrepancies within {reach} px of the prior's "
+                drop = info.get("depth_movers_dropped")
+                why = "" if drop is None else (f" ({drop['flagged']} of the {drop['tested']} tested disagree with the "
+                                               f"prior, more than its {drop['cap']:.0%} cap: the prior is wrong there, "
+                                               f"none taken for movers)")
+                print(f"[depth_movers] {int(movers.sum())} tracks{why}; discrepancies within {reach} px of the prior's "
                       f"extremes ({how})", file=sys.stderr, flush=True)
     if cfg.own_test:
         with tm("rebuild_static"):
