@@ -391,14 +391,17 @@ def test_depth_detail_of_each_prior_and_what_the_lifting_asks_of_it():
     assert depth_detail("model", None) == depth_detail("sfm", {"ok": True}) == ("estimated", "")
     assert depth_detail("sfm", {"ok": False})[0] == depth_detail("none", None)[0] == "constant"
     cfg = OptimConfig()
-    assert prior_limits(cfg, "given") == (cfg, [])
-    est, off = prior_limits(cfg, "estimated")
-    assert off == [] and est == replace(cfg, depth_mover_max_share=ESTIMATED_MOVER_SHARE)
+    assert prior_limits(cfg, "given", True) == (cfg, True, [])
+    est, refine, off = prior_limits(cfg, "estimated", True)
+    assert off == [] and refine and est == replace(cfg, depth_mover_max_share=ESTIMATED_MOVER_SHARE)
     mine = replace(cfg, depth_mover_max_share=0.5)  # a cap the user set stays
-    assert prior_limits(mine, "estimated") == (mine, [])
-    flat, off = prior_limits(cfg, "constant")
-    assert off == ["depth_movers", "static_refit"] and flat.depth_mover_log == flat.static_refit_dc == 0
-    assert prior_limits(flat, "constant") == (flat, [])  # already off: nothing to say
+    assert prior_limits(mine, "estimated", False) == (mine, False, [])
+    flat, refine, off = prior_limits(cfg, "constant", True)
+    assert off == ["depth_movers", "static_refit", "focal_refinement"] and not refine
+    assert flat.depth_mover_log == flat.static_refit_dc == 0
+    assert prior_limits(flat, "constant", False) == (flat, False, [])  # already off, or not asked: nothing to say
+    asked = replace(cfg, refine_focal="on")  # asked for by name: refined whatever the prior
+    assert prior_limits(asked, "constant", True)[1:] == (True, ["depth_movers", "static_refit"])
 
 
 def test_capped_movers_drops_flags_only_over_the_cap():
@@ -442,7 +445,7 @@ def test_sfm_without_parallax_runs_as_depth_none(tiny_scene, tmp_path):
     timings = json.loads((out / "timings.json").read_text())
     assert "depth_movers" not in timings and "static_refit" not in timings and "stage3" in timings
     report = json.loads((out / "optim.json").read_text())["off_for_the_prior"]
-    assert report == {"steps": ["depth_movers", "static_refit"],
+    assert report == {"steps": ["depth_movers", "static_refit"],  # intrinsics given: no refinement to turn off
                       "why": "the SfM depth is constant (no parallax to triangulate from)"}
 
 

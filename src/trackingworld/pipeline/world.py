@@ -409,13 +409,17 @@ def check_optim(o: OptimConfig) -> None:
 ESTIMATED_MOVER_SHARE = 0.08
 
 
-def prior_limits(cfg: OptimConfig, detail: str) -> tuple[OptimConfig, list[str]]:
-    """``cfg`` with the steps off that a depth prior of ``detail`` (:attr:`Inputs.depth_detail`) cannot feed, and
-    their names. A constant prior says nothing about depth: the depth-discrepancy test flags every static object
-    that stands out from the smooth field (seed 0 with --depth none: 1,366 tracks, static kept 93.4 -> 92.5; SfM
-    without parallax on slow synthetic pans: static kept 96.05 / 96.28 against 98.01 / 98.06 without the test and
-    the refit, for +0.9 / +0.1 of bg-mover recall), and the refit would flatten the static points onto that field.
-    An estimated one (SfM, a depth model) keeps both, the test's flags capped at ESTIMATED_MOVER_SHARE of the
+def prior_limits(cfg: OptimConfig, detail: str, refine_focal: bool) -> tuple[OptimConfig, bool, list[str]]:
+    """``cfg`` with the steps off that a depth prior of ``detail`` (:attr:`Inputs.depth_detail`) cannot feed, whether
+    to refine the focal length (``refine_focal``: as asked), and the names of the steps turned off. A constant
+    prior says nothing about depth: the depth-discrepancy test flags every static object that stands out from the
+    smooth field (seed 0 with --depth none: 1,366 tracks, static kept 93.4 -> 92.5; SfM without parallax on slow
+    synthetic pans: static kept 96.05 / 96.28 against 98.01 / 98.06 without the test and the refit, for +0.9 / +0.1
+    of bg-mover recall), the refit would flatten the static points onto that field, and the focal length's
+    refinement (``refine_focal`` "auto" only) has no depth to hold it: on the real videos with a constant SfM depth
+    (pstudio.mp4's fixed camera, sheep.mp4's pan at 40 and 120 frames) its rounds drifted 8-16% and did not settle,
+    and the run kept the starting focal length, the first round's solution, which is what it now solves alone. An
+    estimated prior (SfM, a depth model) keeps all three, the test's flags capped at ESTIMATED_MOVER_SHARE of the
     tracks it tests (:func:`optimise`)."""
     off = []
     if detail == "constant":
@@ -425,9 +429,12 @@ def prior_limits(cfg: OptimConfig, detail: str) -> tuple[OptimConfig, list[str]]
         if cfg.static_refit_dc > 0:
             cfg = replace(cfg, static_refit_dc=0.0)
             off.append("static_refit")
+        if refine_focal and cfg.refine_focal == "auto":
+            refine_focal = False
+            off.append("focal_refinement")
     elif detail == "estimated" and cfg.depth_mover_max_share == 0:
         cfg = replace(cfg, depth_mover_max_share=ESTIMATED_MOVER_SHARE)
-    return cfg, off
+    return cfg, refine_focal, off
 
 
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
@@ -440,7 +447,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     check_optim(cfg.optim)
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
-    optim_cfg, off = prior_limits(cfg.optim, inp.depth_detail)
+    optim_cfg, refine, off = prior_limits(cfg.optim, inp.depth_detail, refine)
     if off and optim_cfg.verbose:
         print(f"{', '.join(f'[{o}] off' for o in off)}: {inp.depth_note}", file=sys.stderr, flush=True)
     colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the short tracks
