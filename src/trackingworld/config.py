@@ -122,7 +122,8 @@ class OptimConfig:
     # held): p75 lets a quarter of a static track's frames leave its point (its 2D track slipped onto an occluder
     # or was found again off its point); those observations are then left out (static_outliers). max: the paper
     test_stat: str = "p75"
-    # focal length refined in stage 2 (stage2.refine_focal): auto = when the intrinsics were not given | on | off
+    # focal length refined in stage 2 (stage2.refine_focal): auto = when the intrinsics were not given and the depth
+    # prior is not constant (pipeline.world.prior_limits) | on | off
     refine_focal: str = "auto"
     # movers the masks missed that slide along the epipolar lines (a static point at another depth explains
     # their pixels): static tracks whose fitted depth disagrees with the prior by this much (log units, after the

@@ -336,7 +336,8 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "adjustment, poses held (default p75: a static track may leave its point in a quarter of its "
                         "frames, which are then left out, see --static-outliers; max: the paper)")
     g.add_argument("--refine-focal", default=d.refine_focal, choices=REFINE_FOCAL,
-                   help="refine the focal length in stage 2 (auto: when --intrinsics is not given)")
+                   help="refine the focal length in stage 2 (auto: when --intrinsics is not given and the depth prior "
+                        "is not constant)")
     g.add_argument("--lambda-ba", type=NON_NEGATIVE, default=d.lambda_ba, help="reprojection weight (stages 2, 3)")
     g.add_argument("--lambda-dc", type=NON_NEGATIVE, default=d.lambda_dc, help="depth-consistency weight (stages 2, 3)")
     g.add_argument("--ba-dc-weight", type=NON_NEGATIVE, default=d.ba_dc_weight, metavar="X",
