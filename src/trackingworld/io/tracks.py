@@ -28,6 +28,7 @@ from trackingworld.tracking2d.base import TrackResult, hold_invisible
 # share of the frames' side, for all but OUTSIDE_SHARE of them, before the file is taken for another resolution's
 OUTSIDE_MARGIN = 0.1
 OUTSIDE_SHARE = 0.01
+CHECK_ROWS = 65536  # tracks checked at a time
 
 
 def load_tracks(path: str | os.PathLike | None, T: int, size: tuple[int, int] | None = None) -> TrackResult:
@@ -84,12 +85,15 @@ def _check_size(path, made_on, tracks: np.ndarray, vis: np.ndarray, size: tuple[
         if (w, h) != (W, H):
             raise InputError(f"{path}: the tracks were made on {w}x{h} frames, this video's are {W}x{H}")
         return
-    seen = tracks[vis]
-    if not len(seen):
-        return
     mx, my = OUTSIDE_MARGIN * W, OUTSIDE_MARGIN * H
-    out = ((seen[:, 0] < -mx) | (seen[:, 0] > W - 1 + mx) | (seen[:, 1] < -my) | (seen[:, 1] > H - 1 + my))
-    if out.mean() > OUTSIDE_SHARE:
-        x1, y1 = np.percentile(seen, 99, axis=0)
-        raise InputError(f"{path}: {100 * out.mean():.0f}% of the visible track points lie outside the {W}x{H} frames "
-                         f"(99th percentile x {x1:.0f}, y {y1:.0f} px): tracks of another resolution?")
+    n_seen = n_out = 0
+    for a in range(0, len(tracks), CHECK_ROWS):  # by rows: the visible points of a long video's file are gigabytes
+        seen = tracks[a:a + CHECK_ROWS][vis[a:a + CHECK_ROWS]]
+        n_seen += len(seen)
+        n_out += int(((seen[:, 0] < -mx) | (seen[:, 0] > W - 1 + mx) | (seen[:, 1] < -my)
+                      | (seen[:, 1] > H - 1 + my)).sum())
+    if n_out > OUTSIDE_SHARE * n_seen:
+        rows = slice(None, None, max(1, len(tracks) // CHECK_ROWS))  # the message's percentile from a sample of rows
+        x1, y1 = np.percentile(tracks[rows][vis[rows]], 99, axis=0)
+        raise InputError(f"{path}: {100 * n_out / n_seen:.0f}% of the visible track points lie outside the {W}x{H} "
+                         f"frames (99th percentile x {x1:.0f}, y {y1:.0f} px): tracks of another resolution?")

@@ -417,7 +417,7 @@ def prior_limits(cfg: OptimConfig, detail: str, refine_focal: bool) -> tuple[Opt
     synthetic pans: static kept 96.05 / 96.28 against 98.01 / 98.06 without the test and the refit, for +0.9 / +0.1
     of bg-mover recall), the refit would flatten the static points onto that field, and the focal length's
     refinement (``refine_focal`` "auto" only) has no depth to hold it: on the real videos with a constant SfM depth
-    (pstudio.mp4's fixed camera, sheep.mp4's pan at 40 and 120 frames) its rounds drifted 8-16% and did not settle,
+    (pstudio.mp4's fixed camera, sheep.mp4's pan at 40 and 120 frames) its rounds drifted 5-16% and did not settle,
     and the run kept the starting focal length, the first round's solution, which is what it now solves alone. An
     estimated prior (SfM, a depth model) keeps all three, the test's flags capped at ESTIMATED_MOVER_SHARE of the
     tracks it tests (:func:`optimise`)."""
