@@ -416,3 +416,71 @@ def test_tracks_read_in_place_from_every_track_give_the_numbers_of_their_copies(
     assert ref[3]["rigid_groups"] >= 1 and got[3] == ref[3]
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
     assert np.array_equal(got[2], ref[2], equal_nan=True)
+
+
+def test_key_frames_spread_evenly_and_keep_short_motions_whole():
+    from trackingworld.optim.rigid import key_frames
+
+    np.testing.assert_array_equal(key_frames(10, 4), [0, 3, 6, 9])
+    np.testing.assert_array_equal(key_frames(48, 48), np.arange(48))
+    np.testing.assert_array_equal(key_frames(120, 0), np.arange(120))
+    k = key_frames(120, 48)
+    assert len(k) == 48 and k[0] == 0 and k[-1] == 119 and np.diff(k).max() <= 3
+
+
+def test_a_long_motion_is_fitted_on_key_frames_and_its_other_frames_to_their_points(monkeypatch):
+    """Beyond ``max_fit_frames`` solved frames the bundle adjustment sees only the key frames (its dense pose system
+    grows with the square of the frames); every other frame's pose is fitted to its points, and the motion is that of
+    the bundle adjustment over all frames within a millimetre and a hundredth of a degree."""
+    from trackingworld.optim import rigid, stage2
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    target = z * 1.05 * (1 + 0.02 * np.random.default_rng(1).standard_normal(z.shape))
+    start = _lift(uv, target, poses, K)
+    frames_seen = []
+    real = stage2.BAProblem.from_tracks
+    monkeypatch.setattr(stage2.BAProblem, "from_tracks",
+                        staticmethod(lambda uv_, d, v, *a: frames_seen.append(v.shape[1]) or real(uv_, d, v, *a)))
+    motion = {}
+    for cap in (0, 6):
+        frames_seen.clear()
+        order, R, tr = rigid.fit_motion(uv, vis, target, start, poses, K, OptimConfig(),
+                                        RigidSettings(max_fit_frames=cap), np.random.default_rng(0))
+        assert sorted(order) == list(range(T)) and order[0] == int(np.argmax(vis.sum(0)))
+        assert frames_seen == ([T] if cap == 0 else [6, T - 6])  # the bundle adjustment, then the other frames
+        motion[cap] = rigid.motion_poses((order, R, tr), poses, T)
+    full, keyed = motion[0], motion[6]
+    assert np.abs(keyed[:, :3, 3] - full[:, :3, 3]).max() < 1e-3
+    turn = Rotation.from_matrix(keyed[:, :3, :3] @ full[:, :3, :3].transpose(0, 2, 1)).magnitude()
+    assert np.rad2deg(turn).max() < 0.01
+    # the poses fitted to the points are the fit's: off by what the depth noise makes of the 5% scale, no more
+    ratio = np.linalg.norm(keyed[:, :3, 3] - keyed[:1, :3, 3], axis=-1)[1:] / \
+        np.linalg.norm(full[:, :3, 3] - full[:1, :3, 3], axis=-1)[1:]
+    np.testing.assert_allclose(ratio, 1.0, atol=2e-3)
+
+
+def test_fit_poses_recovers_every_frame_alone_from_fixed_points():
+    """``stage2.fit_poses``: poses started 2 degrees and 5 cm off, fitted to the exact points of the object and their
+    exact pixels and depths, come back to the truth; a frame without observations stays where it started."""
+    import torch
+
+    from trackingworld.geometry import rigid_transform
+    from trackingworld.optim import stage2
+
+    uv, vis, X, z, poses, K, qf = _scene(rigid=True)
+    vis = vis.copy()
+    vis[:, 4] = False
+    p = stage2.BAProblem.from_tracks(uv, z, vis, K, OptimConfig(), torch.float64, "cpu")
+    # the object frame is the world frame at frame 0: the truth is camera-from-object at each frame
+    truth = invert_pose(poses) @ np.stack([rigid_transform(X[:, 0], X[:, t]) for t in range(T)])
+    off = np.stack([np.eye(4)] * T)
+    off[:, :3, :3] = Rotation.from_rotvec(np.tile([0.0, np.deg2rad(2.0), 0.0], (T, 1))).as_matrix()
+    off[:, :3, 3] = 0.05
+    start = off @ truth
+    R, t = stage2.fit_poses(torch.as_tensor(start[:, :3, :3]), torch.as_tensor(start[:, :3, 3]),
+                            torch.as_tensor(X[:, 0]), p)
+    got = np.zeros((T, 4, 4))
+    got[:, :3, :3], got[:, :3, 3], got[:, 3, 3] = R.numpy(), t.numpy(), 1.0
+    moved = np.arange(T) != 4
+    np.testing.assert_allclose(got[moved], truth[moved], atol=1e-6)
+    np.testing.assert_allclose(got[4], start[4], atol=1e-9)

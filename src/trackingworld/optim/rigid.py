@@ -84,6 +84,13 @@ class RigidSettings:
     # object whose tracks were lost and started again halfway (the 120-frame video of bench_scaling.py) with its
     # halves' relative motion off: the tracks of one half placed in the other's frames 20 cm off (docs/lifting.md 6b)
     max_fit: int = 800
+    # most frames in that bundle adjustment (0: all): a motion solved in more frames is fitted in this many key
+    # frames spread evenly over them (its reference frame one of them), its other frames' poses then fitted alone to
+    # the points it gave (:func:`~trackingworld.optim.stage2.fit_poses`, each frame its own 6 unknowns). The reduced
+    # pose system of the bundle adjustment is dense, (6F)^2 for F frames, and its tracks on a long video are seen in
+    # most of them: its cost grew with the square of the frames (the 120-frame video of bench_scaling.py: the step
+    # 5.7x its 30-frame windows'). 48: no video of the `default` (32) and `hard` (48) presets changes
+    max_fit_frames: int = 48
     rng_seed: int = 0  # the draws' random seed
     # each track's key fixed once for every draw (:func:`_draw`): far steadier under small changes of the input, but
     # forty-seven scenes 83.817 -> 83.805 and `hard` 0 74.43 -> 73.91 (stop 67, docs/lifting.md item 6b); off (False):
@@ -232,22 +239,34 @@ def _draw(idx: np.ndarray, weight: np.ndarray, k: int, rng, keys: np.ndarray | N
     return np.sort(idx[np.argpartition(-prio, k - 1)[:k]])
 
 
+def key_frames(n: int, k: int) -> np.ndarray:
+    """``min(n, k)`` positions ``[m]`` of ``n`` frames (sorted, 0 among them), spread evenly over them (all of them
+    where ``k`` is 0 or ``n <= k``)."""
+    if k <= 0 or n <= k:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, k)).astype(np.int64))
+
+
 def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=torch.float64, device="cpu",
                iters: int | None = None, keys: np.ndarray | None = None):
     """Rigid motion of a group: ``uv [n,T,2]``, ``vis [n,T]``, ``target [n,T]`` depth targets (metres), ``X [n,T,3]``
     its stage-3 world positions (the start). Returns (the solved frames [F] int, their camera-from-object (R, t)
     tensors ``[F,3,3]``, ``[F,3]``; the object frame is the camera frame in the first of them), or None.
     ``iters``: Levenberg-Marquardt iterations (None: ``s.iters``). ``keys [n]``: the tracks' fixed uniform keys of
-    :func:`_draw` (None: a fresh draw from ``rng``)."""
+    :func:`_draw` (None: a fresh draw from ``rng``). Beyond ``s.max_fit_frames`` solved frames the bundle adjustment
+    runs on that many key frames (:func:`key_frames`) and the others' poses are fitted to its points."""
     cfg = replace(cfg, lambda_dc=cfg.lambda_dc * s.dc_weight)
     ref = int(np.argmax(vis.sum(0)))
     O = initial_motion(X, vis, ref)  # object-to-world; the object frame is the world frame at ref
     frames = np.flatnonzero(np.isfinite(O[:, 0, 0]))
     if len(frames) < 3:
         return None
-    order = np.concatenate([[ref], frames[frames != ref]])  # stage 2 keeps its frame 0 fixed
+    pos = key_frames(len(frames), s.max_fit_frames)
+    at_ref = int(np.searchsorted(frames, ref))
+    key = frames[np.union1d(pos, [at_ref])]
+    order = np.concatenate([[ref], key[key != ref]])  # stage 2 keeps its frame 0 fixed
     w2c = invert_pose(poses)
-    cfo = w2c[order] @ O[order] @ poses[ref]  # camera-from-object, the object frame moved to the camera's at ref
+    cfo = w2c[frames] @ O[frames] @ poses[ref]  # camera-from-object, the object frame moved to the camera's at ref
     seen = vis[:, order].sum(1)  # each track's solved frames
     fit = np.flatnonzero(seen >= 2)
     if len(fit) < 3:
@@ -256,9 +275,29 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
         fit = _draw(fit, seen[fit], s.max_fit, rng, None if keys is None else keys[fit])
     p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
                                      cfg, dtype, device)
-    R, t = lie.c2w_to_w2c(invert_pose(cfo), dtype, device)  # camera-from-object as (R, t)
+    at = np.searchsorted(frames, order)  # each solved frame's row of cfo
+    R, t = lie.c2w_to_w2c(invert_pose(cfo[at]), dtype, device)  # camera-from-object as (R, t)
     sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=iters or s.iters)
-    return order, sol.R, sol.t
+    if len(order) == len(frames):
+        return order, sol.R, sol.t
+    # the other frames: each one's chained pose relative to the nearest key frame's carried onto that frame's fit,
+    # then fitted to the bundle adjustment's points
+    rest = np.setdiff1d(frames, order)
+    kf = np.sort(order)
+    after = np.clip(np.searchsorted(kf, rest), 1, len(kf) - 1)
+    near = np.where(rest - kf[after - 1] <= kf[after] - rest, kf[after - 1], kf[after])
+    fitted = np.zeros((len(order), 4, 4))
+    fitted[:, :3, :3], fitted[:, :3, 3], fitted[:, 3, 3] = (sol.R.detach().cpu().numpy(),
+                                                             sol.t.detach().cpu().numpy(), 1.0)
+    row = np.zeros(vis.shape[1], np.int64)
+    row[order] = np.arange(len(order))  # each key frame's row of the fit
+    start = cfo[np.searchsorted(frames, rest)] @ invert_pose(cfo[np.searchsorted(frames, near)]) @ fitted[row[near]]
+    q = stage2.BAProblem.from_tracks(uv[np.ix_(fit, rest)], target[np.ix_(fit, rest)], vis[np.ix_(fit, rest)], K,
+                                     cfg, dtype, device)
+    R0 = torch.as_tensor(start[:, :3, :3], dtype=dtype, device=device)
+    t0 = torch.as_tensor(start[:, :3, 3], dtype=dtype, device=device)
+    Rr, tr = stage2.fit_poses(R0, t0, sol.X, q, iters=iters or s.iters)
+    return np.concatenate([order, rest]), torch.cat([sol.R, Rr]), torch.cat([sol.t, tr])
 
 
 def place_on_motion(uv, vis, target, motion, K, cfg, dtype=torch.float64, device="cpu", rows=None):

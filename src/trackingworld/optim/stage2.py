@@ -572,6 +572,31 @@ def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None
     return BASolution(R, t, X, cost, p.with_focal_scale(phi).K if refine_focal else p.K)
 
 
+def fit_poses(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6) -> tuple[torch.Tensor, torch.Tensor]:
+    """World-to-camera poses ``R [T,3,3]``, ``t [T,3]`` fitted with the points ``X [N,3]`` held fixed:
+    Levenberg-Marquardt on the same objective, every frame's 6 unknowns solved alone (with the points fixed the
+    frames do not couple), so a step costs the observations', not the frames' square. Every frame moves."""
+    cost = loss_value(R, t, X, p)
+    mu = 1e-4
+    for _ in range(iters):
+        Hcc, _, _, gc, _ = _linearize(R, t, X, p)
+        while True:
+            dc = -torch.linalg.solve(_damp(Hcc, mu), gc[..., None])[..., 0]
+            Rn, tn = lie.update(R, t, dc)
+            new = loss_value(Rn, tn, X, p)
+            if new <= cost or mu > 1e6:
+                break
+            mu *= 8
+        if new > cost:
+            break
+        rel = (cost - new) / max(cost, 1e-300)
+        R, t, cost = Rn, tn, new
+        mu = max(mu / 4, 1e-8)
+        if rel < tol:
+            break
+    return R, t
+
+
 def refine_focal(sol: BASolution, p: BAProblem, moving: np.ndarray, inlier_px: float = 3.0, iters: int = 30,
                  tol: float = 1e-9, log=None) -> BASolution:
     """The focal length from a stage-2 solution: bundle adjustment with the focal length free (least squares,
