@@ -357,6 +357,8 @@ def test_a_negative_split_gap_is_refused_in_one_line():
 
     with pytest.raises(InputError, match="rigid_split_gap -0.1: a fraction of the depth"):
         check_optim(OptimConfig(rigid_split_gap=-0.1))
+    with pytest.raises(InputError, match="rigid_key_frames 2: 0 .all frames. or 3 or more"):
+        check_optim(OptimConfig(rigid_key_frames=2))
 
 
 def test_float32_tracks_give_the_numbers_of_their_float64_copies():

@@ -354,6 +354,11 @@ class OptimConfig:
     # only the other was seen in (`hard` 22: objects 2.4 m apart in one group, world 3D accuracy 73.2 -> 75.2; the
     # forty-seven scenes 83.807 -> 83.785, 39 unchanged; optim.rigid, docs/lifting.md item 6f; 0: never)
     rigid_split_gap: float = 0.1
+    # (not in the paper) ... and a group's motion solved in more frames than this bundle-adjusted on this many key
+    # frames spread over them, every other frame's pose fitted alone to the points it gave: the dense pose system
+    # of the fit grows with the square of its frames (optim.rigid, docs/lifting.md item 6b; 0: all frames, as
+    # before stop 90). 48: the `default` (32) and `hard` (48) presets' videos are solved whole, as before
+    rigid_key_frames: int = 48
     # (not in the paper) a dynamic-labelled track is its query pixel's static point (lifted at the consistent video
     # depth there) when it lies within occluded_static_px of that point's projection in at least occluded_static_frac
     # of at least occluded_static_in_view frames where the point is in view, and at least occluded_static_frames of its

@@ -485,6 +485,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper) with --rigid-movers: a group whose points fall apart, in the object's "
                         "frame, into pieces more than FRAC x their median depth apart is cut to its largest piece "
                         "(0: never)")
+    g.add_argument("--rigid-key-frames", type=int, default=d.rigid_key_frames, metavar="FRAMES",
+                   help="(not in the paper) with --rigid-movers: a group's motion solved in more frames than FRAMES "
+                        "is bundle-adjusted on FRAMES key frames spread over them and every other frame's pose "
+                        "fitted to its points (0: all frames in the bundle adjustment)")
     g.add_argument("--occluded-static", type=int, default=d.occluded_static_frames, metavar="FRAMES",
                    help="(not in the paper) a dynamic track is its query pixel's static point when it is on that "
                         "point wherever the point is in view and off it in at least FRAMES frames where a nearer "
@@ -555,7 +559,7 @@ def _optim_config(a):
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,
         photo_static_track_px=a.photo_static_track,
         rigid_movers=a.rigid_movers, rigid_bridge=a.rigid_bridge, rigid_second_pass=a.rigid_second_pass,
-        rigid_split_gap=a.rigid_split_gap,
+        rigid_split_gap=a.rigid_split_gap, rigid_key_frames=a.rigid_key_frames,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,
