@@ -217,7 +217,8 @@ def test_stage3_options_reach_the_config():
                                                    "--photo-static", "16",
                                                    "--photo-static-frac", "0.6", "--photo-static-patch", "5",
                                                    "--vote-once-gap", "inf", "--no-rigid-movers",
-                                                   "--rigid-second-pass", "0", "--mask-core-px", "0"]))
+                                                   "--rigid-second-pass", "0", "--mask-core-px", "0",
+                                                   "--rigid-key-frames", "0"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
@@ -227,6 +228,7 @@ def test_stage3_options_reach_the_config():
     assert cfg.photo_static_patch == 5.0 and not cfg.rigid_movers and cfg.rigid_second_pass == 0
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     assert default.rigid_movers and default.rigid_second_pass == 30
+    assert cfg.rigid_key_frames == 0 and default.rigid_key_frames == 48
     assert cfg.mask_core_px == 0 and default.mask_core_px == OptimConfig().mask_core_px == 10
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)

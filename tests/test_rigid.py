@@ -92,19 +92,30 @@ def test_initial_motion_chains_the_frames_and_stops_where_too_few_are_shared():
     np.testing.assert_allclose(transform(O[5][None], X[:, 0]), X[:, 5], atol=1e-9)
 
 
-def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny_scene, tmp_path):
+def test_run_with_rigid_movers_times_the_step_and_keeps_the_result_contract(tiny_scene, tmp_path, monkeypatch):
     import json
 
     from trackingworld.cli.main import main
     from trackingworld.io.result import load_result
+    from trackingworld.optim import stage2
 
     inp = tiny_scene / "input"
     outs = {}
-    for name, extra in (("off", ["--no-rigid-movers"]), ("on", [])):
+    pose_fits = {}  # the poses-only fits of the frames between key frames, per run
+    real = stage2.fit_poses
+    monkeypatch.setattr(stage2, "fit_poses", lambda *a, **k: pose_fits.update(n=pose_fits.get("n", 0) + 1) or
+                        real(*a, **k))
+    for name, extra in (("off", ["--no-rigid-movers"]), ("on", []), ("keyed", ["--rigid-key-frames", "4"])):
+        pose_fits["n"] = 0
         out = outs[name] = tmp_path / name
         assert main(["run", str(inp / "frames"), "--out", str(out), "--depth", str(inp / "depth.npy"),
                      "--masks", str(inp / "masks"), "--intrinsics", str(inp / "intrinsics.txt"), "--quiet",
                      *extra]) == 0
+        pose_fits[name] = pose_fits["n"]
+    # the tiny scene's groups are solved whole by default; with 4 key frames their other frames are fitted alone
+    assert pose_fits["on"] == 0 and pose_fits["keyed"] > 0
+    keyed = load_result(outs["keyed"])
+    assert np.isfinite(keyed.tracks_3d).all() and len(keyed.object_poses) >= 1
     assert "rigid_movers" in json.loads((outs["on"] / "timings.json").read_text())
     assert "rigid_movers" not in json.loads((outs["off"] / "timings.json").read_text())
     a, b = load_result(outs["off"]), load_result(outs["on"])
