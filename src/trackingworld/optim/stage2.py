@@ -539,36 +539,56 @@ class BASolution:
 MAX_FOCAL_STEP = 0.2  # largest change of log focal length per LM step (a guard on weakly determined focal)
 
 
-def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None,
-             refine_focal: bool = False) -> BASolution:
-    """Levenberg-Marquardt on poses and points, and the focal length with ``refine_focal`` (see the module
-    docstring). Frame 0 stays fixed."""
-    free = torch.ones(p.n_frames, dtype=torch.bool, device=R.device)
-    free[0] = False
-    phi = 0.0
-    cost = loss_value(R, t, X, p)
+def levenberg_marquardt(state, cost: float, linearize, trial, iters: int, tol: float, log=None, label: str = ""):
+    """Marquardt's damping schedule, shared by :func:`solve_lm` and :func:`fit_poses`: ``linearize(state)`` gives the
+    blocks of a step, ``trial(state, blocks, mu)`` a candidate state and its cost under damping ``mu``. A candidate
+    is taken when it does not raise ``cost`` (``mu`` x8 until one does not, or ``mu`` passes 1e6; /4 after a taken
+    one); the loop ends after ``iters`` steps, at a step it could not take, or when the cost falls by less than
+    ``tol`` of itself. Returns (the state, its cost)."""
     mu = 1e-4
     for it in range(iters):
-        pk = p.with_focal_scale(phi) if refine_focal else p
-        Hcc, Hxx, Hcx, gc, gx, *fb = _linearize(R, t, X, pk, focal=refine_focal)
+        blocks = linearize(state)
         while True:
-            dc, dx, df = _schur_step(Hcc, Hxx, Hcx, gc, gx, pk, mu, free, fb[0] if fb else None)
-            df = float(np.clip(df, -MAX_FOCAL_STEP, MAX_FOCAL_STEP))
-            Rn, tn = lie.update(R, t, dc)
-            Xn = X + dx
-            new = loss_value(Rn, tn, Xn, p.with_focal_scale(phi + df) if refine_focal else p)
+            cand, new = trial(state, blocks, mu)
             if new <= cost or mu > 1e6:
                 break
             mu *= 8
         if new > cost:
             break
         rel = (cost - new) / max(cost, 1e-300)
-        R, t, X, cost, phi = Rn, tn, Xn, new, phi + df
+        state, cost = cand, new
         mu = max(mu / 4, 1e-8)
         if log:
-            log("stage 2", it, cost)
+            log(label, it, cost)
         if rel < tol:
             break
+    return state, cost
+
+
+def solve_lm(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6, log=None,
+             refine_focal: bool = False) -> BASolution:
+    """Levenberg-Marquardt on poses and points, and the focal length with ``refine_focal`` (see the module
+    docstring). Frame 0 stays fixed."""
+    free = torch.ones(p.n_frames, dtype=torch.bool, device=R.device)
+    free[0] = False
+
+    def linearize(state):
+        R, t, X, phi = state
+        pk = p.with_focal_scale(phi) if refine_focal else p
+        return pk, _linearize(R, t, X, pk, focal=refine_focal)
+
+    def trial(state, blocks, mu):
+        R, t, X, phi = state
+        pk, (Hcc, Hxx, Hcx, gc, gx, *fb) = blocks
+        dc, dx, df = _schur_step(Hcc, Hxx, Hcx, gc, gx, pk, mu, free, fb[0] if fb else None)
+        df = float(np.clip(df, -MAX_FOCAL_STEP, MAX_FOCAL_STEP))
+        Rn, tn = lie.update(R, t, dc)
+        Xn = X + dx
+        new = loss_value(Rn, tn, Xn, p.with_focal_scale(phi + df) if refine_focal else p)
+        return (Rn, tn, Xn, phi + df), new
+
+    (R, t, X, phi), cost = levenberg_marquardt((R, t, X, 0.0), loss_value(R, t, X, p), linearize, trial, iters, tol,
+                                               log, "stage 2")
     return BASolution(R, t, X, cost, p.with_focal_scale(phi).K if refine_focal else p.K)
 
 
@@ -576,24 +596,13 @@ def fit_poses(R, t, X, p: BAProblem, iters: int = 30, tol: float = 1e-6) -> tupl
     """World-to-camera poses ``R [T,3,3]``, ``t [T,3]`` fitted with the points ``X [N,3]`` held fixed:
     Levenberg-Marquardt on the same objective, every frame's 6 unknowns solved alone (with the points fixed the
     frames do not couple), so a step costs the observations', not the frames' square. Every frame moves."""
-    cost = loss_value(R, t, X, p)
-    mu = 1e-4
-    for _ in range(iters):
-        Hcc, _, _, gc, _ = _linearize(R, t, X, p)
-        while True:
-            dc = -torch.linalg.solve(_damp(Hcc, mu), gc[..., None])[..., 0]
-            Rn, tn = lie.update(R, t, dc)
-            new = loss_value(Rn, tn, X, p)
-            if new <= cost or mu > 1e6:
-                break
-            mu *= 8
-        if new > cost:
-            break
-        rel = (cost - new) / max(cost, 1e-300)
-        R, t, cost = Rn, tn, new
-        mu = max(mu / 4, 1e-8)
-        if rel < tol:
-            break
+
+    def trial(state, blocks, mu):
+        Hcc, _, _, gc, _ = blocks
+        Rn, tn = lie.update(*state, -torch.linalg.solve(_damp(Hcc, mu), gc[..., None])[..., 0])
+        return (Rn, tn), loss_value(Rn, tn, X, p)
+
+    (R, t), _ = levenberg_marquardt((R, t), loss_value(R, t, X, p), lambda s: _linearize(*s, X, p), trial, iters, tol)
     return R, t
 
 
