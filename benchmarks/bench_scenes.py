@@ -112,19 +112,22 @@ def source_digest(package_dir: Path, skip: tuple[str, ...] = ()) -> str:
     return h.hexdigest()[:16]
 
 
-def cached_scene(cache: Path, preset: str, seed: int, track2d: Track2DConfig) -> tuple[Path, Path]:
+def cached_scene(cache: Path, preset: str, seed: int, track2d: Track2DConfig,
+                 frames: int | None = None) -> tuple[Path, Path]:
     """The scene folder and its dense tracks by ``track2d``, made when missing or made by another package
-    version, other generator code (rendered again), other tracking settings or other tracker code."""
+    version, other generator code (rendered again), other tracking settings or other tracker code. ``frames``:
+    rendered at that length (None: the preset's; a cache of the presets' lengths has no length in its stamps)."""
     scene = cache / f"{preset}{seed}"
     tracks = scene / "tracks.npz"
     stamp = scene / "stamp.json"
     want = json.loads(json.dumps({"version": __version__, "preset": preset, "seed": seed,
+                                  **({} if frames is None else {"frames": frames}),
                                   "synth": source_digest(Path(synth.__file__).parent),
                                   "track2d": {**asdict(track2d), "code": tracker_code(track2d.tracker)}}))
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
     if not (tracks.exists() and have == want):
         if {**have, "track2d": None} != {**want, "track2d": None}:  # the scene itself: rendered again
-            render_and_write(scene, preset, seed, verbose=False)
+            render_and_write(scene, preset, seed, frames, verbose=False)
         fields = {k: v for k, v in asdict(track2d).items() if v != getattr(Track2DConfig(), k)}
         tracks_file(scene, tracks, **fields)
         stamp.write_text(json.dumps(want))
@@ -149,7 +152,12 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("bench_out/scenes"),
                     help="scenes and their dense tracks, kept between runs (one folder per tracking setting)")
     ap.add_argument("--name", default="scenes", help="stem of the results files in benchmarks/results/")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="render the scenes at this many frames instead of their preset's (give it a --cache folder "
+                         "of its own), e.g. 120 for the long videos of the rigid step's key frames")
     a = ap.parse_args(argv)
+    if a.frames is not None and a.frames < 2:
+        ap.error(f"--frames {a.frames}: a video of 2 frames or more")
     rows = [("default", parse_row("default=")[1], "trackingworld")]
     rows += [(*parse_row(r), "trackingworld") for r in a.row]
     if a.baseline:
@@ -159,7 +167,7 @@ def main(argv=None) -> int:
     a.cache.mkdir(parents=True, exist_ok=True)
     results: dict = {name: {} for name, _, _ in rows}
     for preset, seed in scenes:
-        scene, tracks = cached_scene(a.cache, preset, seed, track2d)
+        scene, tracks = cached_scene(a.cache, preset, seed, track2d, a.frames)
         inp = scene / "input"
         for i, (name, optim, method) in enumerate(rows):
             given = InputConfig(input=str(inp / "frames"), depth=str(inp / "depth.npy"), masks=str(inp / "masks"),
@@ -177,6 +185,8 @@ def write(results: dict, a) -> None:
     head = "| row | scene | " + " | ".join(c[0] for c in COLUMNS) + " | optimisation [s] |"
     flags = " ".join([f"--row {shlex.quote(r)}" for r in a.row] + ["--baseline"] * a.baseline +
                      ([f"--track {shlex.quote(a.track)}"] if a.track else []) +
+                     ([f"--frames {a.frames}"] if a.frames is not None else []) +
+                     ([f"--cache {a.cache}"] if a.cache != Path("bench_out/scenes") else []) +
                      ([f"--name {a.name}"] if a.name != "scenes" else []))
     lines = md_table_start("# The full method on synthetic scenes (same cached dense tracks for every row)",
                            f"Command: `.venv/bin/python benchmarks/bench_scenes.py --scenes {' '.join(a.scenes)}"
