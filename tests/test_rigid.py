@@ -477,7 +477,7 @@ def test_fit_poses_recovers_every_frame_alone_from_fixed_points():
     exact pixels and depths, come back to the truth; a frame without observations stays where it started."""
     import torch
 
-    from trackingworld.geometry import rigid_transform
+    from trackingworld.geometry import pose_from_rt, rigid_transform
     from trackingworld.optim import stage2
 
     uv, vis, X, z, poses, K, qf = _scene(rigid=True)
@@ -492,8 +492,7 @@ def test_fit_poses_recovers_every_frame_alone_from_fixed_points():
     start = off @ truth
     R, t = stage2.fit_poses(torch.as_tensor(start[:, :3, :3]), torch.as_tensor(start[:, :3, 3]),
                             torch.as_tensor(X[:, 0]), p)
-    got = np.zeros((T, 4, 4))
-    got[:, :3, :3], got[:, :3, 3], got[:, 3, 3] = R.numpy(), t.numpy(), 1.0
+    got = pose_from_rt(R.numpy(), t.numpy())
     moved = np.arange(T) != 4
     np.testing.assert_allclose(got[moved], truth[moved], atol=1e-6)
     np.testing.assert_allclose(got[4], start[4], atol=1e-9)

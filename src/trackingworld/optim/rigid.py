@@ -42,7 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import camera_depths, depth_along, invert_pose, rigid_transform, transform
+from trackingworld.geometry import camera_depths, depth_along, invert_pose, pose_from_rt, rigid_transform, transform
 from trackingworld.optim import lie, point_fit, stage2
 from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
 
@@ -265,8 +265,8 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     at_ref = int(np.searchsorted(frames, ref))
     key = frames[np.union1d(pos, [at_ref])]
     order = np.concatenate([[ref], key[key != ref]])  # stage 2 keeps its frame 0 fixed
-    w2c = invert_pose(poses)
-    cfo = w2c[frames] @ O[frames] @ poses[ref]  # camera-from-object, the object frame moved to the camera's at ref
+    # [T,4,4] camera-from-object (NaN in the unsolved frames), the object frame moved to the camera's at ref
+    cfo = invert_pose(poses) @ O @ poses[ref]
     seen = vis[:, order].sum(1)  # each track's solved frames
     fit = np.flatnonzero(seen >= 2)
     if len(fit) < 3:
@@ -275,8 +275,7 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
         fit = _draw(fit, seen[fit], s.max_fit, rng, None if keys is None else keys[fit])
     p = stage2.BAProblem.from_tracks(uv[np.ix_(fit, order)], target[np.ix_(fit, order)], vis[np.ix_(fit, order)], K,
                                      cfg, dtype, device)
-    at = np.searchsorted(frames, order)  # each solved frame's row of cfo
-    R, t = lie.c2w_to_w2c(invert_pose(cfo[at]), dtype, device)  # camera-from-object as (R, t)
+    R, t = lie.c2w_to_w2c(invert_pose(cfo[order]), dtype, device)  # camera-from-object as (R, t)
     sol = stage2.solve_lm(R, t, stage2.init_points(R, t, p), p, iters=iters or s.iters)
     if len(order) == len(frames):
         return order, sol.R, sol.t
@@ -286,12 +285,9 @@ def fit_motion(uv, vis, target, X, poses, K, cfg, s: RigidSettings, rng, dtype=t
     kf = np.sort(order)
     after = np.clip(np.searchsorted(kf, rest), 1, len(kf) - 1)
     near = np.where(rest - kf[after - 1] <= kf[after] - rest, kf[after - 1], kf[after])
-    fitted = np.zeros((len(order), 4, 4))
-    fitted[:, :3, :3], fitted[:, :3, 3], fitted[:, 3, 3] = (sol.R.detach().cpu().numpy(),
-                                                             sol.t.detach().cpu().numpy(), 1.0)
-    row = np.zeros(vis.shape[1], np.int64)
-    row[order] = np.arange(len(order))  # each key frame's row of the fit
-    start = cfo[np.searchsorted(frames, rest)] @ invert_pose(cfo[np.searchsorted(frames, near)]) @ fitted[row[near]]
+    fitted = np.full_like(cfo, np.nan)  # [T,4,4] the key frames' camera-from-object of the fit
+    fitted[order] = pose_from_rt(sol.R.detach().cpu().numpy(), sol.t.detach().cpu().numpy())
+    start = cfo[rest] @ invert_pose(cfo[near]) @ fitted[near]
     q = stage2.BAProblem.from_tracks(uv[np.ix_(fit, rest)], target[np.ix_(fit, rest)], vis[np.ix_(fit, rest)], K,
                                      cfg, dtype, device)
     R0 = torch.as_tensor(start[:, :3, :3], dtype=dtype, device=device)
