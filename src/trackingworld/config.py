@@ -131,6 +131,7 @@ class OptimConfig:
     # square, in most of their frames, become dynamic (optim.depth_movers; not in the paper; 0: off)
     depth_mover_log: float = 0.03
     depth_mover_window_px: float = 20.0
+    depth_mover_bin: float = 0.0
     # (not in the paper) ... and that threshold raised to this many median absolute deviations of the first round's
     # discrepancies where that is more (0: the fixed threshold alone): a prior whose warp the fields follow less
     # well (the `hard` preset's, warped by up to 20%) spreads the discrepancies of static regions wider and the fixed

@@ -38,9 +38,13 @@ def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames
 
 
 def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
-                      cell_px: float = 4.0) -> list:
+                      cell_px: float = 4.0, log_depth: np.ndarray | None = None, depth_bin: float = 0.0) -> list:
     """:func:`local_majority` of each of ``flags`` (``[M]`` bool each), the cells and the windows' counts of
-    observations made once for all of them."""
+    observations made once for all of them. With ``log_depth [M]`` (the prior's log depth at each observation)
+    and ``depth_bin > 0`` (log units) the window is also one of depth: only the observations whose prior lies in
+    the same bin of that width or the two beside it count (:func:`_bilateral_fractions`)."""
+    if log_depth is not None and depth_bin > 0:
+        return _bilateral_fractions(frame, uv, flags, n_frames, shape, window_px, cell_px, log_depth, depth_bin)
     h, w = shape
     gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
     cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
@@ -59,6 +63,41 @@ def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, i
     return [window_sums(f.astype(np.float64)) / counts for f in flags]
 
 
+def _bilateral_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
+                         cell_px: float, log_depth: np.ndarray, depth_bin: float) -> list:
+    """:func:`_window_fractions` over a grid of (depth bin, cell) per frame: each observation's window is the
+    ``window_px`` square of cells in its depth bin and the two beside it (a bilateral grid). A small mover in
+    front of the background fills little of a square window, but most of the window of its own depth. Per frame
+    the (channel, bin) slices of the grid are stacked into one image, ``k // 2`` rows of zeros between them, for
+    one box filter (OpenCV)."""
+    h, w = shape
+    gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
+    cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
+    cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
+    b = np.floor(log_depth / depth_bin).astype(np.int64)
+    k = max(int(round(window_px / cell_px)) | 1, 1)
+    r = k // 2
+    weights = np.stack([np.ones(len(frame))] + [f.astype(np.float64) for f in flags])  # [C,M]
+    sums = np.zeros_like(weights)
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(n_frames + 1))
+    for f in range(n_frames):
+        s = order[bounds[f]:bounds[f + 1]]
+        if not len(s):
+            continue
+        bf = b[s] - b[s].min() + 1  # a bin of zeros on either side
+        nb = int(bf.max()) + 2
+        idx = (bf * gh + cy[s]) * gw + cx[s]
+        grid = np.stack([np.bincount(idx, weights=wt[s], minlength=nb * gh * gw) for wt in weights])
+        grid = grid.reshape(len(weights), nb, gh, gw)
+        grid[:, 1:-1] += grid[:, :-2] + grid[:, 2:]  # the bins beside (the outer two hold zeros)
+        tall = np.zeros((len(weights), nb, gh + r, gw))
+        tall[:, :, :gh] = grid
+        box = cv2.boxFilter(tall.reshape(-1, gw), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        sums[:, s] = box.reshape(len(weights), nb, gh + r, gw)[:, :, :gh].reshape(len(weights), -1)[:, idx]
+    return [sums[i] / sums[0] for i in range(1, len(weights))]
+
+
 def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
                  n_frames: int, shape: tuple[int, int], thresh: float = 0.05, window_px: float = 20.0) -> np.ndarray:
     """[n_tracks] bool: the tracks whose static point disagrees with the prior, region by region.
@@ -71,7 +110,8 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
 
 
 def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
-                    n_frames: int, shape: tuple[int, int], thresholds, window_px: float = 20.0) -> list:
+                    n_frames: int, shape: tuple[int, int], thresholds, window_px: float = 20.0,
+                    log_depth: np.ndarray | None = None, depth_bin: float = 0.0) -> list:
     """:func:`depth_movers` at each of ``thresholds`` (log units): one [n_tracks] bool per threshold, the cells
     and the windows' counts of observations made once for all of them."""
     out = [np.zeros(n_tracks, bool) for _ in thresholds]
@@ -79,7 +119,7 @@ def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.
         return out
     n_obs = np.bincount(track, minlength=n_tracks)
     flags = [f for th in thresholds for f in (e >= th, e <= -th)]
-    fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px)
+    fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px, log_depth=log_depth, depth_bin=depth_bin)
     for i, frac in enumerate(fracs):
         won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
         out[i // 2] |= won * 2 > n_obs

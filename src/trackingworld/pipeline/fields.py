@@ -200,6 +200,7 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     obs = spread_observations(vis[cand], cfg.test_frames) if cfg.test_frames else vis[cand]
     k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
     uv_obs = uv[cand[k], t]
+    log_d = np.log(np.maximum(D[cand[k], t], 1e-6)) if cfg.depth_mover_bin > 0 else None
     spread = None  # the prior's range around each observation (its blur at depth edges)
     reach = mover_range_px(cfg.depth_mover_range_px, prior)
     if prior is not None and reach > 0:
@@ -221,7 +222,8 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
         if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # the suspects, for the next round's fields
             thresholds.append(threshold * cfg.depth_mover_suspect)
         movers, *suspects = depth_movers_at(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
-                                            thresholds, cfg.depth_mover_window_px)
+                                            thresholds, cfg.depth_mover_window_px,
+                                            None if log_d is None else log_d[keep], cfg.depth_mover_bin)
         if suspects:
             left_out = suspects[0]
     return movers, thinned
