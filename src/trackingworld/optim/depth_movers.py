@@ -23,6 +23,8 @@ Not in the paper (its depth term, in metres, switches the offsets on only beyond
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 from numba import njit
@@ -42,9 +44,10 @@ def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, i
     """:func:`local_majority` of each of ``flags`` (``[M]`` bool each), the cells and the windows' counts of
     observations made once for all of them. With ``log_depth [M]`` (the prior's log depth at each observation)
     and ``depth_bin > 0`` (log units) the window is also one of depth: only the observations whose prior lies in
-    the same bin of that width or the two beside it count (:func:`_bilateral_fractions`)."""
+    the same bin of that width or the two beside it count (:class:`BilateralWindows`)."""
     if log_depth is not None and depth_bin > 0:
-        return _bilateral_fractions(frame, uv, flags, n_frames, shape, window_px, cell_px, log_depth, depth_bin)
+        return BilateralWindows.build(frame, uv, log_depth, n_frames, shape, window_px, depth_bin,
+                                      cell_px).fractions(flags)
     h, w = shape
     gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
     cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
@@ -63,39 +66,67 @@ def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, i
     return [window_sums(f.astype(np.float64)) / counts for f in flags]
 
 
-def _bilateral_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
-                         cell_px: float, log_depth: np.ndarray, depth_bin: float) -> list:
-    """:func:`_window_fractions` over a grid of (depth bin, cell) per frame: each observation's window is the
-    ``window_px`` square of cells in its depth bin and the two beside it (a bilateral grid). A small mover in
-    front of the background fills little of a square window, but most of the window of its own depth. Per frame
-    the (channel, bin) slices of the grid are stacked into one image, ``k // 2`` rows of zeros between them, for
-    one box filter (OpenCV)."""
-    h, w = shape
-    gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
-    cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
-    cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
-    b = np.floor(log_depth / depth_bin).astype(np.int64)
-    k = max(int(round(window_px / cell_px)) | 1, 1)
-    r = k // 2
-    weights = np.stack([np.ones(len(frame))] + [f.astype(np.float64) for f in flags])  # [C,M]
-    sums = np.zeros_like(weights)
-    order = np.argsort(frame, kind="stable")
-    bounds = np.searchsorted(frame[order], np.arange(n_frames + 1))
-    for f in range(n_frames):
-        s = order[bounds[f]:bounds[f + 1]]
-        if not len(s):
-            continue
-        bf = b[s] - b[s].min() + 1  # a bin of zeros on either side
-        nb = int(bf.max()) + 2
-        idx = (bf * gh + cy[s]) * gw + cx[s]
-        grid = np.stack([np.bincount(idx, weights=wt[s], minlength=nb * gh * gw) for wt in weights])
-        grid = grid.reshape(len(weights), nb, gh, gw)
-        grid[:, 1:-1] += grid[:, :-2] + grid[:, 2:]  # the bins beside (the outer two hold zeros)
-        tall = np.zeros((len(weights), nb, gh + r, gw))
-        tall[:, :, :gh] = grid
-        box = cv2.boxFilter(tall.reshape(-1, gw), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        sums[:, s] = box.reshape(len(weights), nb, gh + r, gw)[:, :, :gh].reshape(len(weights), -1)[:, idx]
-    return [sums[i] / sums[0] for i in range(1, len(weights))]
+@dataclass(frozen=True)
+class BilateralWindows:
+    """The windows of :func:`_window_fractions` over a grid of (cell, depth bin) per frame: each observation's
+    window is the ``window_px`` square of cells in its depth bin and the two beside it (a bilateral grid). A small
+    mover in front of the background fills little of a square window, but most of the window of its own depth.
+    The grid is kept sparse (its occupied entries sorted by frame, cell and bin, :func:`_bilateral_sums`), so the
+    cost follows the observations, not the frames' area times the range of depths; built once for the
+    observations of a test, it serves each round's flags."""
+
+    inverse: np.ndarray  # [M] each observation's entry
+    key_cell: np.ndarray  # [K] (frame x gh + y) x gw + x of each entry, ascending
+    key_bin: np.ndarray  # [K] depth bin of each entry
+    start: np.ndarray  # [T gh gw + 1] each cell's first entry
+    grid: tuple[int, int, int]  # gh, gw, the window's reach in cells
+
+    @classmethod
+    def build(cls, frame, uv, log_depth, n_frames: int, shape: tuple[int, int], window_px: float,
+              depth_bin: float, cell_px: float = 4.0) -> BilateralWindows:
+        """The windows of the observations ``frame [M]``, ``uv [M,2]`` px with the prior's ``log_depth [M]``,
+        depth bins ``depth_bin`` wide (log units)."""
+        h, w = shape
+        gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
+        cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
+        cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
+        b = np.floor(log_depth / depth_bin).astype(np.int64)
+        b -= b.min(initial=0)
+        n_bins = int(b.max(initial=0)) + 1
+        cell = (frame.astype(np.int64) * gh + cy) * gw + cx
+        keys, inverse = np.unique(cell * n_bins + b, return_inverse=True)
+        key_cell, key_bin = np.divmod(keys, n_bins)
+        start = np.concatenate([[0], np.cumsum(np.bincount(key_cell, minlength=n_frames * gh * gw))])
+        return cls(inverse, key_cell, key_bin, start, (gh, gw, max(int(round(window_px / cell_px)) | 1, 1) // 2))
+
+    def fractions(self, flags: list) -> list:
+        """For each of ``flags`` ([M] bool each): [M] float, the fraction of each observation's window flagged."""
+        weights = [np.ones(len(self.inverse))] + [f.astype(np.float64) for f in flags]
+        key_w = np.stack([np.bincount(self.inverse, weights=wt, minlength=len(self.key_bin)) for wt in weights])
+        sums = _bilateral_sums(self.start, self.key_cell, self.key_bin, key_w, *self.grid)[:, self.inverse]
+        return [sums[i] / sums[0] for i in range(1, len(weights))]
+
+
+@njit(cache=True, nogil=True)
+def _bilateral_sums(start, key_cell, key_bin, key_w, gh, gw, r):
+    """[C,K]: for each occupied entry of the sparse grid (``key_cell [K]`` = (frame x gh + y) x gw + x,
+    ``key_bin [K]``, sorted by both; ``start``: each cell's first entry, CSR) the sum of the channels ``key_w
+    [C,K]`` over the entries of the cells within ``r`` of its own, in its bin or the two beside it."""
+    C, K = key_w.shape
+    out = np.zeros((C, K))
+    area = gh * gw
+    for i in range(K):
+        f = key_cell[i] // area
+        y = (key_cell[i] % area) // gw
+        x = key_cell[i] % gw
+        for yy in range(max(0, y - r), min(gh, y + r + 1)):
+            for xx in range(max(0, x - r), min(gw, x + r + 1)):
+                c = f * area + yy * gw + xx
+                for j in range(start[c], start[c + 1]):
+                    if abs(key_bin[j] - key_bin[i]) <= 1:
+                        for ch in range(C):
+                            out[ch, i] += key_w[ch, j]
+    return out
 
 
 def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
@@ -111,15 +142,19 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
 
 def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
                     n_frames: int, shape: tuple[int, int], thresholds, window_px: float = 20.0,
-                    log_depth: np.ndarray | None = None, depth_bin: float = 0.0) -> list:
+                    windows: BilateralWindows | None = None) -> list:
     """:func:`depth_movers` at each of ``thresholds`` (log units): one [n_tracks] bool per threshold, the cells
-    and the windows' counts of observations made once for all of them."""
+    and the windows' counts of observations made once for all of them; with ``windows`` (built for these
+    observations) the local majority is over those (:class:`BilateralWindows`) instead of ``window_px`` squares."""
     out = [np.zeros(n_tracks, bool) for _ in thresholds]
     if not len(track):
         return out
     n_obs = np.bincount(track, minlength=n_tracks)
     flags = [f for th in thresholds for f in (e >= th, e <= -th)]
-    fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px, log_depth=log_depth, depth_bin=depth_bin)
+    if windows is not None:
+        fracs = windows.fractions(flags)
+    else:
+        fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px)
     for i, frac in enumerate(fracs):
         won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
         out[i // 2] |= won * 2 > n_obs

@@ -17,6 +17,7 @@ from trackingworld.geometry import invert_pose, transform
 from trackingworld.image import sample_image
 from trackingworld.optim.densify import propagate_ratio, thinned_observations
 from trackingworld.optim.depth_movers import (
+    BilateralWindows,
     blur_tolerant,
     depth_movers_at,
     less_fields,
@@ -201,6 +202,7 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
     k, t, e_raw = log_depth_ratios(cand, obs, xyz, D, poses)
     uv_obs = uv[cand[k], t]
     log_d = np.log(np.maximum(D[cand[k], t], 1e-6)) if cfg.depth_mover_bin > 0 else None
+    windows, windows_of = None, None  # the bilateral windows (cfg.depth_mover_bin), built once per set of frames
     spread = None  # the prior's range around each observation (its blur at depth edges)
     reach = mover_range_px(cfg.depth_mover_range_px, prior)
     if prior is not None and reach > 0:
@@ -221,9 +223,12 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
         thresholds = [threshold]
         if cfg.depth_mover_suspect < 1 and r < rounds - 1:  # the suspects, for the next round's fields
             thresholds.append(threshold * cfg.depth_mover_suspect)
+        if log_d is not None and (windows_of is None or not np.array_equal(keep, windows_of)):
+            windows = BilateralWindows.build(t[keep], uv_obs[keep], log_d[keep], vis.shape[1], shape,
+                                             cfg.depth_mover_window_px, cfg.depth_mover_bin)
+            windows_of = keep
         movers, *suspects = depth_movers_at(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
-                                            thresholds, cfg.depth_mover_window_px,
-                                            None if log_d is None else log_d[keep], cfg.depth_mover_bin)
+                                            thresholds, cfg.depth_mover_window_px, windows)
         if suspects:
             left_out = suspects[0]
     return movers, thinned
