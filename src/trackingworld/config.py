@@ -132,6 +132,7 @@ class OptimConfig:
     depth_mover_log: float = 0.03
     depth_mover_window_px: float = 20.0
     depth_mover_bin: float = 0.0
+    depth_mover_bin_factor: float = 0.0
     # (not in the paper) ... and that threshold raised to this many median absolute deviations of the first round's
     # discrepancies where that is more (0: the fixed threshold alone): a prior whose warp the fields follow less
     # well (the `hard` preset's, warped by up to 20%) spreads the discrepancies of static regions wider and the fixed

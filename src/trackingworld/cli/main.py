@@ -410,6 +410,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--depth-mover-bin", type=float, default=d.depth_mover_bin, metavar="LOG",
                    help="(not in the paper) that majority counts only the observations whose prior depth lies in "
                         "the same bin of this width (log units) or the two beside it (0: the whole square)")
+    g.add_argument("--depth-mover-bin-factor", type=float, default=d.depth_mover_bin_factor, metavar="X",
+                   help="(not in the paper) with --depth-mover-bin: an observation wins by the square's majority at "
+                        "the threshold or by its depth's at X times it (0: by its depth's alone, at the threshold)")
     g.add_argument("--depth-mover-mad", type=float, default=d.depth_mover_mad, metavar="K",
                    help="(not in the paper) the depth-discrepancy test's threshold raised to K times the median "
                         "absolute deviation of the discrepancies when that is larger (0: the fixed threshold)")
@@ -551,7 +554,7 @@ def _optim_config(a):
         mask_dynamic_px=a.mask_dynamic_px, mask_core_px=a.mask_core_px, slip_run=a.slip_run, slip_px=a.slip_px,
         static_rebuild=a.static_rebuild, static_fit_frames=a.static_fit_frames,
         depth_mover_log=a.depth_mover, depth_mover_window_px=a.depth_mover_window,
-        depth_mover_bin=a.depth_mover_bin,
+        depth_mover_bin=a.depth_mover_bin, depth_mover_bin_factor=a.depth_mover_bin_factor,
         depth_mover_rounds=a.depth_mover_rounds, depth_mover_mad=a.depth_mover_mad,
         depth_mover_max_share=a.depth_mover_max_share,
         depth_mover_suspect=a.depth_mover_suspect,

@@ -71,9 +71,9 @@ class BilateralWindows:
     """The windows of :func:`_window_fractions` over a grid of (cell, depth bin) per frame: each observation's
     window is the ``window_px`` square of cells in its depth bin and the two beside it (a bilateral grid). A small
     mover in front of the background fills little of a square window, but most of the window of its own depth.
-    The grid is kept sparse (its occupied entries sorted by frame, cell and bin, :func:`_bilateral_sums`), so the
-    cost follows the observations, not the frames' area times the range of depths; built once for the
-    observations of a test, it serves each round's flags."""
+    The grid is kept sparse (its occupied entries sorted by frame, cell and bin; :func:`_sparse_grid`,
+    :func:`_bilateral_fractions`, compiled), so the cost follows the observations, not the frames' area times the
+    range of depths; built once for the observations of a test, it serves each round's flags."""
 
     inverse: np.ndarray  # [M] each observation's entry
     key_cell: np.ndarray  # [K] (frame x gh + y) x gw + x of each entry, ascending
@@ -92,40 +92,94 @@ class BilateralWindows:
         cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
         b = np.floor(log_depth / depth_bin).astype(np.int64)
         b -= b.min(initial=0)
-        n_bins = int(b.max(initial=0)) + 1
         cell = (frame.astype(np.int64) * gh + cy) * gw + cx
-        keys, inverse = np.unique(cell * n_bins + b, return_inverse=True)
-        key_cell, key_bin = np.divmod(keys, n_bins)
-        start = np.concatenate([[0], np.cumsum(np.bincount(key_cell, minlength=n_frames * gh * gw))])
+        inverse, key_cell, key_bin, start = _sparse_grid(cell, b, n_frames * gh * gw)
         return cls(inverse, key_cell, key_bin, start, (gh, gw, max(int(round(window_px / cell_px)) | 1, 1) // 2))
 
     def fractions(self, flags: list) -> list:
         """For each of ``flags`` ([M] bool each): [M] float, the fraction of each observation's window flagged."""
-        weights = [np.ones(len(self.inverse))] + [f.astype(np.float64) for f in flags]
-        key_w = np.stack([np.bincount(self.inverse, weights=wt, minlength=len(self.key_bin)) for wt in weights])
-        sums = _bilateral_sums(self.start, self.key_cell, self.key_bin, key_w, *self.grid)[:, self.inverse]
-        return [sums[i] / sums[0] for i in range(1, len(weights))]
+        if not len(flags):
+            return []
+        out = _bilateral_fractions(self.inverse, np.stack(flags), self.start, self.key_cell, self.key_bin,
+                                   *self.grid)
+        return list(out)
 
 
 @njit(cache=True, nogil=True)
-def _bilateral_sums(start, key_cell, key_bin, key_w, gh, gw, r):
-    """[C,K]: for each occupied entry of the sparse grid (``key_cell [K]`` = (frame x gh + y) x gw + x,
-    ``key_bin [K]``, sorted by both; ``start``: each cell's first entry, CSR) the sum of the channels ``key_w
-    [C,K]`` over the entries of the cells within ``r`` of its own, in its bin or the two beside it."""
-    C, K = key_w.shape
-    out = np.zeros((C, K))
+def _sparse_grid(cell, b, n_cells):
+    """The occupied entries of a grid of (cell, bin) from observations in cells ``cell [M]`` (< ``n_cells``) and
+    bins ``b [M]`` (>= 0): (inverse [M] each observation's entry, key_cell [K], key_bin [K] ascending by both,
+    start [n_cells + 1] each cell's first entry). A counting sort by cell, then the few bins of each cell."""
+    M = len(cell)
+    per_cell = np.zeros(n_cells + 1, np.int64)
+    for m in range(M):
+        per_cell[cell[m] + 1] += 1
+    for c in range(n_cells):
+        per_cell[c + 1] += per_cell[c]
+    order = np.empty(M, np.int64)
+    fill = per_cell[:-1].copy()
+    for m in range(M):
+        order[fill[cell[m]]] = m
+        fill[cell[m]] += 1
+    inverse = np.empty(M, np.int64)
+    key_cell = np.empty(M, np.int64)
+    key_bin = np.empty(M, np.int64)
+    start = np.zeros(n_cells + 1, np.int64)
+    K = 0
+    for c in range(n_cells):
+        start[c] = K
+        lo, hi = per_cell[c], per_cell[c + 1]
+        if hi == lo:
+            continue
+        bins = np.sort(b[order[lo:hi]])
+        first = K
+        for i in range(len(bins)):
+            if i == 0 or bins[i] != bins[i - 1]:
+                key_cell[K] = c
+                key_bin[K] = bins[i]
+                K += 1
+        for i in range(lo, hi):  # the cell's entries are few: a linear search
+            m = order[i]
+            k = first
+            while key_bin[k] != b[m]:
+                k += 1
+            inverse[m] = k
+    start[n_cells] = K
+    return inverse, key_cell[:K].copy(), key_bin[:K].copy(), start
+
+
+@njit(cache=True, nogil=True)
+def _bilateral_fractions(inverse, flags, start, key_cell, key_bin, gh, gw, r):
+    """[F,M]: for each observation (its entry ``inverse [M]`` of the sparse grid of :func:`_sparse_grid`) the
+    fraction of the observations in its window flagged by each of ``flags [F,M]`` (bool): those of the entries of
+    the cells within ``r`` of its own (``key_cell`` = (frame x gh + y) x gw + x), in its bin or the two beside."""
+    F, M = flags.shape
+    K = len(key_bin)
+    own = np.zeros((K, F + 1))  # per entry: observations, flagged ones
+    for m in range(M):
+        k = inverse[m]
+        own[k, 0] += 1.0
+        for f in range(F):
+            if flags[f, m]:
+                own[k, f + 1] += 1.0
+    near = np.zeros((K, F + 1))
     area = gh * gw
     for i in range(K):
-        f = key_cell[i] // area
+        fr = key_cell[i] // area
         y = (key_cell[i] % area) // gw
         x = key_cell[i] % gw
         for yy in range(max(0, y - r), min(gh, y + r + 1)):
             for xx in range(max(0, x - r), min(gw, x + r + 1)):
-                c = f * area + yy * gw + xx
+                c = fr * area + yy * gw + xx
                 for j in range(start[c], start[c + 1]):
                     if abs(key_bin[j] - key_bin[i]) <= 1:
-                        for ch in range(C):
-                            out[ch, i] += key_w[ch, j]
+                        for ch in range(F + 1):
+                            near[i, ch] += own[j, ch]
+    out = np.empty((F, M))
+    for m in range(M):
+        k = inverse[m]
+        for f in range(F):
+            out[f, m] = near[k, f + 1] / near[k, 0]
     return out
 
 
@@ -142,7 +196,7 @@ def depth_movers(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.nda
 
 def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.ndarray, n_tracks: int,
                     n_frames: int, shape: tuple[int, int], thresholds, window_px: float = 20.0,
-                    windows: BilateralWindows | None = None) -> list:
+                    windows: BilateralWindows | None = None, windows_factor: float = 0.0) -> list:
     """:func:`depth_movers` at each of ``thresholds`` (log units): one [n_tracks] bool per threshold, the cells
     and the windows' counts of observations made once for all of them; with ``windows`` (built for these
     observations) the local majority is over those (:class:`BilateralWindows`) instead of ``window_px`` squares."""
@@ -151,12 +205,15 @@ def depth_movers_at(track: np.ndarray, frame: np.ndarray, uv: np.ndarray, e: np.
         return out
     n_obs = np.bincount(track, minlength=n_tracks)
     flags = [f for th in thresholds for f in (e >= th, e <= -th)]
-    if windows is not None:
-        fracs = windows.fractions(flags)
+    if windows is not None and windows_factor <= 0:
+        wins = [f > 0.5 for f in windows.fractions(flags)]
     else:
-        fracs = _window_fractions(frame, uv, flags, n_frames, shape, window_px)
-    for i, frac in enumerate(fracs):
-        won = np.bincount(track, weights=(frac > 0.5).astype(np.float64), minlength=n_tracks)
+        wins = [f > 0.5 for f in _window_fractions(frame, uv, flags, n_frames, shape, window_px)]
+        if windows is not None:
+            more = [f for th in thresholds for f in (e >= th * windows_factor, e <= -th * windows_factor)]
+            wins = [a | (f > 0.5) for a, f in zip(wins, windows.fractions(more), strict=True)]
+    for i, win in enumerate(wins):
+        won = np.bincount(track, weights=win.astype(np.float64), minlength=n_tracks)
         out[i // 2] |= won * 2 > n_obs
     return out
 

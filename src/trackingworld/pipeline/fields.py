@@ -228,7 +228,8 @@ def depth_mover_test(cand, static, uv, vis, xyz, D, poses, shape: tuple[int, int
                                              cfg.depth_mover_window_px, cfg.depth_mover_bin)
             windows_of = keep
         movers, *suspects = depth_movers_at(k[keep], t[keep], uv_obs[keep], e, len(cand), vis.shape[1], shape,
-                                            thresholds, cfg.depth_mover_window_px, windows)
+                                            thresholds, cfg.depth_mover_window_px, windows,
+                                            cfg.depth_mover_bin_factor)
         if suspects:
             left_out = suspects[0]
     return movers, thinned
