@@ -218,7 +218,8 @@ def test_stage3_options_reach_the_config():
                                                    "--photo-static-frac", "0.6", "--photo-static-patch", "5",
                                                    "--vote-once-gap", "inf", "--no-rigid-movers",
                                                    "--rigid-second-pass", "0", "--mask-core-px", "0",
-                                                   "--rigid-key-frames", "0"]))
+                                                   "--rigid-key-frames", "0", "--depth-mover-bin", "0.2",
+                                                   "--depth-mover-bin-factor", "3"]))
     assert (cfg.carry_k, cfg.carry_reach, cfg.ts_order, cfg.stage3_linear) == (4, 1.5, 1, "amg")
     assert (cfg.slip_run, cfg.slip_px, cfg.dc_edge_sigma_px) == (0.5, 3.0, 0.0)
     assert (cfg.vote_colour_sigma, cfg.vote_k, cfg.dc_target_smooth, cfg.dc_field_smooth) == (0.0, 5, 0.02, 0.03)
@@ -229,6 +230,7 @@ def test_stage3_options_reach_the_config():
     default = _optim_config(build_parser().parse_args(["run", "x", "--out", "o"]))
     assert default.rigid_movers and default.rigid_second_pass == 30
     assert cfg.rigid_key_frames == 0 and default.rigid_key_frames == 48
+    assert (cfg.depth_mover_bin, cfg.depth_mover_bin_factor) == (0.2, 3.0)
     assert cfg.mask_core_px == 0 and default.mask_core_px == OptimConfig().mask_core_px == 10
     d = OptimConfig()
     got = (default.carry_k, default.carry_reach, default.ts_order, default.stage3_linear)
@@ -284,6 +286,9 @@ def test_unknown_optimiser_choice_is_refused_before_any_work(tmp_path):
     for bad in (dict(depth_mover_rounds=0), dict(depth_mover_suspect=0.0), dict(depth_mover_suspect=1.5),
                 dict(depth_mover_range_px=-1), dict(depth_mover_mad=-1.0), dict(depth_mover_mad=float("nan"))):
         with pytest.raises(InputError, match="the rounds are 1 or more"):
+            run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
+    for bad in (dict(depth_mover_bin=-0.1), dict(depth_mover_bin=float("nan")), dict(depth_mover_bin_factor=-1.0)):
+        with pytest.raises(InputError, match="the depth bins' width is 0 \\(off\\) or more"):
             run_trackingworld(inp, None, RunConfig(optim=OptimConfig(**bad)))
     for bad in (dict(photo_static_grey=-1.0), dict(photo_static_frac=1.2), dict(photo_static_frames=0),
                 dict(photo_static_near_px=-1.0), dict(photo_static_range=1.0), dict(photo_static_patch=-1.0),

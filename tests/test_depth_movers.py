@@ -66,6 +66,13 @@ def test_the_bilateral_window_finds_a_mover_too_small_for_the_square(rng):
     assert square[obj].mean() < 0.5
     assert bilateral[obj].mean() > 0.9
     assert bilateral[~obj].mean() < 0.01
+    # with a factor: the square's majority at the threshold or the depth's at twice it; 15% off passes 2 x 5%
+    either, = depth_movers_at(track, frame, xy, e, n, T, (240, 320), [0.05], 20.0, windows, 2.0)
+    assert either[obj].mean() > 0.9 and either[~obj].mean() < 0.01
+    # 7% off: the depth's majority at 5% holds, at 10% it does not, and the square's is lost
+    e_small = e - np.where(obj[track], 0.08, 0.0)
+    assert depth_movers_at(track, frame, xy, e_small, n, T, (240, 320), [0.05], 20.0, windows)[0][obj].mean() > 0.9
+    assert depth_movers_at(track, frame, xy, e_small, n, T, (240, 320), [0.05], 20.0, windows, 2.0)[0][obj].mean() < 0.1
 
 
 def _patch_scene(rng, e_mover: float):

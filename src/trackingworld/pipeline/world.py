@@ -368,6 +368,9 @@ def check_optim(o: OptimConfig) -> None:
                          f"depth_mover_range_px {o.depth_mover_range_px} / depth_mover_mad {o.depth_mover_mad}: the "
                          "rounds are 1 or more, the suspects' fraction of the threshold over 0 and at most 1, the "
                          "range 0 px or more (None: estimated), the threshold's MADs 0 (off) or more")
+    if not (o.depth_mover_bin >= 0 and o.depth_mover_bin_factor >= 0):
+        raise InputError(f"depth_mover_bin {o.depth_mover_bin} / depth_mover_bin_factor {o.depth_mover_bin_factor}: "
+                         "the depth bins' width is 0 (off) or more (log units), the factor 0 (the bins alone) or more")
     if (o.photo_static_grey < 0 or not 0 <= o.photo_static_frac <= 1 or o.photo_static_frames < 1
             or o.photo_static_near_px < 0 or not 0 <= o.photo_static_range < 1 or not o.photo_static_patch >= 0
             or not o.photo_static_track_px >= 0):
