@@ -408,8 +408,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--depth-mover-window", type=float, default=d.depth_mover_window_px, metavar="PX",
                    help="side of the square (px) of that local majority")
     g.add_argument("--depth-mover-bin", type=float, default=d.depth_mover_bin, metavar="LOG",
-                   help="(not in the paper) that majority counts only the observations whose prior depth lies in "
-                        "the same bin of this width (log units) or the two beside it (0: the whole square)")
+                   help="(not in the paper) an observation also wins by the majority of the observations in its "
+                        "square whose prior depth lies in its bin of this width (log units) or the two beside it: a "
+                        "mover too small to fill the square (0: the square alone, before stop 91)")
     g.add_argument("--depth-mover-bin-factor", type=float, default=d.depth_mover_bin_factor, metavar="X",
                    help="(not in the paper) with --depth-mover-bin: an observation wins by the square's majority at "
                         "the threshold or by its depth's at X times it (0: by its depth's alone, at the threshold)")
