@@ -2,7 +2,7 @@
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
 :mod:`trackingworld.optim.static_fit`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
-the nearest ends of :mod:`trackingworld.optim.depth_movers`,
+the nearest ends and the windows of the same depth of :mod:`trackingworld.optim.depth_movers`,
 the projections of :mod:`trackingworld.optim.photo_static` and the fields of :mod:`trackingworld.optim.ratio_field`
 on their first call and caches the machine code beside
 the package; without this step the first run on a machine pays that compile (about 25 s on a 2-core CPU) in the
@@ -48,6 +48,8 @@ def warm() -> float:
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
     densify.thinned_observations(uv, vis, 4.0)  # the video depth's references
     depth_movers.blur_tolerant(np.zeros(N), np.ones(N), -np.ones(N))  # the depth-mover test's nearest ends
+    windows = depth_movers.BilateralWindows.build(fr, uv[pt, fr], np.log(depth[pt, fr]), T, (240, 320), 20.0, 0.1)
+    windows.fractions([np.ones(len(pt), bool)])  # its windows of the same prior depth
     fields = ratio_field.fit_log_fields([(uv[:, 0], np.zeros(N)), None], (240, 320))  # the depth fields
     fields[0](uv[:, 1])
     open_t = np.ones((240, 320), bool)
