@@ -5,7 +5,6 @@ import numpy as np
 from trackingworld.geometry import intrinsics_matrix, invert_pose, project, transform, unproject
 from trackingworld.optim.depth_movers import (
     BilateralWindows,
-    _window_fractions,
     depth_movers,
     depth_movers_at,
     less_fields,
@@ -36,15 +35,12 @@ def test_the_bilateral_window_counts_the_cells_window_in_the_bins_beside_its_own
     uv = rng.uniform([0, 0], [319.9, 239.9], (M, 2))
     log_d = rng.uniform(0.0, 1.5, M)
     flags = [rng.random(M) < 0.3, rng.random(M) < 0.6]
-    got = _window_fractions(frame, uv, flags, T, (240, 320), win, cell, log_depth=log_d, depth_bin=width)
+    got = BilateralWindows.build(frame, uv, log_d, T, (240, 320), win, width, cell).fractions(flags)
     c, b = np.floor(uv / cell).astype(int), np.floor(log_d / width).astype(int)
     for i in rng.choice(M, 200, replace=False):  # by brute force
         near = (frame == frame[i]) & (np.abs(c - c[i]) <= 2).all(1) & (np.abs(b - b[i]) <= 1)
         for g, f in zip(got, flags, strict=True):
             assert g[i] == f[near].sum() / near.sum()  # counts of 0/1 flags: exact
-    off = _window_fractions(frame, uv, flags, T, (240, 320), win, cell, log_depth=log_d, depth_bin=0.0)
-    square = _window_fractions(frame, uv, flags, T, (240, 320), win, cell)
-    assert all(np.array_equal(p, q) for p, q in zip(off, square, strict=True))
 
 
 def test_the_bilateral_window_finds_a_mover_too_small_for_the_square(rng):

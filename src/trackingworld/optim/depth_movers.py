@@ -39,22 +39,22 @@ def local_majority(frame: np.ndarray, uv: np.ndarray, flag: np.ndarray, n_frames
     return _window_fractions(frame, uv, [flag], n_frames, shape, window_px, cell_px)[0]
 
 
-def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
-                      cell_px: float = 4.0, log_depth: np.ndarray | None = None, depth_bin: float = 0.0) -> list:
-    """:func:`local_majority` of each of ``flags`` (``[M]`` bool each), the cells and the windows' counts of
-    observations made once for all of them. With ``log_depth [M]`` (the prior's log depth at each observation)
-    and ``depth_bin > 0`` (log units) the window is also one of depth: only the observations whose prior lies in
-    the same bin of that width or the two beside it count (:class:`BilateralWindows`)."""
-    if log_depth is not None and depth_bin > 0:
-        return BilateralWindows.build(frame, uv, log_depth, n_frames, shape, window_px, depth_bin,
-                                      cell_px).fractions(flags)
+def _cells(frame, uv, n_frames: int, shape: tuple[int, int], window_px: float, cell_px: float):
+    """The grid of the local majorities: (gh, gw, each observation's cell ``[M]`` = (frame x gh + y) x gw + x,
+    the number of cells ``n_frames gh gw``, the window's side in cells, odd)."""
     h, w = shape
     gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
     cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
     cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
-    idx = (frame.astype(np.int64) * gh + cy) * gw + cx
-    size = n_frames * gh * gw
-    k = max(int(round(window_px / cell_px)) | 1, 1)  # odd, in cells
+    cell = (frame.astype(np.int64) * gh + cy) * gw + cx
+    return gh, gw, cell, n_frames * gh * gw, max(int(round(window_px / cell_px)) | 1, 1)
+
+
+def _window_fractions(frame, uv, flags: list, n_frames: int, shape: tuple[int, int], window_px: float,
+                      cell_px: float = 4.0) -> list:
+    """:func:`local_majority` of each of ``flags`` (``[M]`` bool each), the cells and the windows' counts of
+    observations made once for all of them."""
+    gh, gw, idx, size, k = _cells(frame, uv, n_frames, shape, window_px, cell_px)
 
     def window_sums(weights):  # per observation: the box sum (unnormalised) of weights over its window
         grid = np.bincount(idx, weights=weights, minlength=size).reshape(n_frames, gh, gw)
@@ -86,15 +86,11 @@ class BilateralWindows:
               depth_bin: float, cell_px: float = 4.0) -> BilateralWindows:
         """The windows of the observations ``frame [M]``, ``uv [M,2]`` px with the prior's ``log_depth [M]``,
         depth bins ``depth_bin`` wide (log units)."""
-        h, w = shape
-        gw, gh = int(np.ceil(w / cell_px)), int(np.ceil(h / cell_px))
-        cx = np.clip((uv[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
-        cy = np.clip((uv[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
+        gh, gw, cell, size, k = _cells(frame, uv, n_frames, shape, window_px, cell_px)
         b = np.floor(log_depth / depth_bin).astype(np.int64)
         b -= b.min(initial=0)
-        cell = (frame.astype(np.int64) * gh + cy) * gw + cx
-        inverse, key_cell, key_bin, start = _sparse_grid(cell, b, n_frames * gh * gw)
-        return cls(inverse, key_cell, key_bin, start, (gh, gw, max(int(round(window_px / cell_px)) | 1, 1) // 2))
+        inverse, key_cell, key_bin, start = _sparse_grid(cell, b, size)
+        return cls(inverse, key_cell, key_bin, start, (gh, gw, k // 2))
 
     def fractions(self, flags: list) -> list:
         """For each of ``flags`` ([M] bool each): [M] float, the fraction of each observation's window flagged."""
