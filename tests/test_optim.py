@@ -632,6 +632,14 @@ def test_spread_observations_keeps_about_m_frames_over_the_span():
         assert 5 <= len(kept) <= 6 and kept[0] == np.flatnonzero(vis[i])[0] and kept[-1] == np.flatnonzero(vis[i])[-1]
 
 
+@pytest.mark.parametrize("m", [1, 3, 10, 16])
+def test_spread_observations_compiled_is_the_numpy_reference_to_the_bit(m):
+    vis = np.random.default_rng(m).random((500, 40)) < np.linspace(0.02, 0.9, 500)[:, None]  # 0 to 36 frames
+    vis[0], vis[1] = False, True  # a track never seen, one seen in every frame
+    np.testing.assert_array_equal(static_tests.spread_observations(vis, m),
+                                  static_tests.spread_observations_numpy(vis, m))
+
+
 def test_stage3_target_frame_removes_each_frames_prior_scale():
     """Static tracks at known depths, a prior off by a different scale in every frame: the ``frame`` target
     of a dynamic track is its true depth again, ``prior`` keeps the error."""
@@ -780,6 +788,38 @@ def test_sample_maps_reads_only_the_visible_observations_when_asked():
     pix = np.array([[[3.0, 7.0], [0.0, 0.0], [29.0, 19.0], [40.0, -5.0]]])
     got = sample_maps(maps, pix)[0]
     assert got == pytest.approx([maps[0, 7, 3], maps[1, 0, 0], maps[2, 19, 29], maps[3, 0, 29]])
+    # written into an array of its own at the visible observations only, the others left as they were
+    into = np.full((50, 4), 7.0, np.float32)
+    assert sample_maps(maps, uv, vis, out=into) is into
+    np.testing.assert_array_equal(into[vis], dense[vis])
+    assert (into[~vis] == 7).all()
+    with pytest.raises(ValueError, match="out needs visible"):
+        sample_maps(maps, uv, out=into)
+
+
+@pytest.mark.parametrize("in_place", [False, True])
+def test_edge_free_prior_writes_its_tracks_visible_samples_over_the_base(in_place):
+    # the tracks idx read the edge-free maps where visible; every other entry is the base's, as it was
+    from trackingworld.optim.edge_prior import inner_prior
+    from trackingworld.pipeline.fields import edge_free_prior
+    from trackingworld.pipeline.lift import sample_maps
+
+    rng = np.random.default_rng(1)
+    maps = rng.uniform(1, 5, (4, 20, 30)).astype(np.float32)
+    uv = rng.uniform(0, 29, (60, 4, 2)).astype(np.float32)
+    vis = rng.random((60, 4)) < 0.6
+    idx = np.arange(0, 60, 3)
+    base = sample_maps(maps, uv, vis)
+    kept = base.copy()
+    got = edge_free_prior(maps, uv, vis, idx, 2.0, base, in_place=in_place)
+    assert (got is base) == in_place
+    if not in_place:
+        np.testing.assert_array_equal(base, kept)  # the base untouched
+    seen = np.zeros_like(vis)
+    seen[idx] = vis[idx]
+    np.testing.assert_array_equal(got[seen], sample_maps(inner_prior(maps, uv, seen, 2.0), uv, seen)[seen])
+    np.testing.assert_array_equal(got[~seen], kept[~seen])
+    assert not np.array_equal(got[seen], kept[seen])  # the edge-free maps differ from the prior
 
 
 def test_stage2_solved_again_without_a_movers_observations_is_closer_to_the_true_poses():

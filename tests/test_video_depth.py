@@ -19,17 +19,16 @@ def _tracks(seed=0, N=900, T=5, H=30, W=40):
     vis[:, 4] = False  # and one with none: its ratio stays 1
     poses = np.tile(np.eye(4), (T, 1, 1))
     poses[:, 0, 3] = np.arange(T) * 0.1
-    D_raw = rng.uniform(2, 4, (N, T)).astype(np.float32)
     xyz = rng.uniform([-1, -1, 2], [1, 1, 4], (N, T, 3)).astype(np.float32)
     prior = rng.uniform(2, 4, (T, H, W)).astype(np.float32)
     K = intrinsics_matrix(35.0, 35.0, W / 2, H / 2)
-    return uv, vis, xyz, D_raw, poses, prior, K
+    return uv, vis, xyz, poses, prior, K
 
 
 @pytest.mark.parametrize("how", ["all ahead", "some ahead", "budget", "none ahead", "never run"])
 def test_the_video_depth_with_the_search_ahead_is_the_one_without_to_the_bit(how):
-    uv, vis, xyz, D_raw, poses, prior, K = _tracks()
-    ref, n_ref = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K)
+    uv, vis, xyz, poses, prior, K = _tracks()
+    ref, n_ref = vd.video_depth(uv, vis, xyz, poses, prior, K)
     budget = 2 * prior.shape[1] * prior.shape[2] * vd.K_NEAREST * 4 if how == "budget" else vd.AHEAD_BYTES
     ahead = vd.SearchAhead(uv, vis, prior.shape[1:], budget)
     if how in ("all ahead", "budget"):
@@ -45,20 +44,37 @@ def test_the_video_depth_with_the_search_ahead_is_the_one_without_to_the_bit(how
         ahead.run()
     elif how == "none ahead":
         ahead.references()
-    got, n_ahead = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)
+    got, n_ahead = vd.video_depth(uv, vis, xyz, poses, prior, K, ahead)
     np.testing.assert_array_equal(got, ref)
     assert n_ref == 0 and n_ahead == {"all ahead": 5, "budget": 2, "some ahead": 2}.get(how, 0)
     assert (got[4] == prior[4]).all() and not (got[0] == prior[0]).all()
 
 
+def test_the_video_depth_reads_the_prior_at_its_references_as_sampled_at_every_observation():
+    # the prior sampled at the thinned references only: the maps of the ratios of the whole [N,T] sample, to the bit
+    from trackingworld.optim.densify import ratio_maps
+    from trackingworld.pipeline.fields import reference_ratios
+    from trackingworld.pipeline.lift import sample_maps, sample_observations
+
+    uv, vis, xyz, poses, prior, K = _tracks(3)
+    D_raw = sample_maps(prior, uv, vis)
+    n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, vd.REFERENCE_CELL_PX)
+    np.testing.assert_array_equal(sample_observations(prior, uv, n, t), D_raw[n, t])
+    shuffled = np.random.default_rng(0).permutation(len(n))  # any order of the observations
+    np.testing.assert_array_equal(sample_observations(prior, uv, n[shuffled], t[shuffled]), D_raw[n, t][shuffled])
+    ref = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K, vd.K_NEAREST) * prior
+    got, _ = vd.video_depth(uv, vis, xyz, poses, prior, K)
+    np.testing.assert_array_equal(got, ref)
+
+
 def test_a_non_finite_ratio_sets_the_search_ahead_aside():
     # the references of a frame are then not the ones searched ahead: the maps are made as without it
-    uv, vis, xyz, D_raw, poses, prior, K = _tracks(1)
+    uv, vis, xyz, poses, prior, K = _tracks(1)
     xyz[np.flatnonzero(vis[:, 0])[0], 0] = np.nan
-    ref, _ = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K)
+    ref, _ = vd.video_depth(uv, vis, xyz, poses, prior, K)
     ahead = vd.SearchAhead(uv, vis, prior.shape[1:])
     ahead.run()
-    got, _ = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)
+    got, _ = vd.video_depth(uv, vis, xyz, poses, prior, K, ahead)
     np.testing.assert_array_equal(got, ref)
     assert np.isfinite(got).all()
 
@@ -110,12 +126,12 @@ def test_a_core_taken_leaves_the_others_to_the_splits(monkeypatch):
 
 
 def test_the_search_handed_to_a_thread_is_finished_by_the_video_depth():
-    uv, vis, xyz, D_raw, poses, prior, K = _tracks(2)
-    ref, _ = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K)
+    uv, vis, xyz, poses, prior, K = _tracks(2)
+    ref, _ = vd.video_depth(uv, vis, xyz, poses, prior, K)
     ahead = vd.SearchAhead(uv, vis, prior.shape[1:])
     thread = threading.Thread(target=ahead.job())
     thread.start()
-    got, n = vd.video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)  # waits for the thread's frame in hand
+    got, n = vd.video_depth(uv, vis, xyz, poses, prior, K, ahead)  # waits for the thread's frame in hand
     thread.join(5)
     assert not thread.is_alive()
     np.testing.assert_array_equal(got, ref)

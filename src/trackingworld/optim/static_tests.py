@@ -19,6 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 import torch
+from numba import njit
 
 from trackingworld.config import OptimConfig
 from trackingworld.optim import stage2
@@ -156,7 +157,13 @@ def vote_short(once, voters, dynamic, uv, D, vis, qf, K, k: int, colours: np.nda
 
 def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
     """``[n,T]`` bool: of each track's visible frames ``vis [n,T]``, at most about ``m`` spread evenly over its
-    visible span (every ceil(count / m)-th one and the last)."""
+    visible span (every ceil(count / m)-th one and the last). Compiled (:func:`_spread_kernel`, one pass a track:
+    131k tracks x 120 frames, 0.08-0.10 -> 0.02 s); :func:`spread_observations_numpy` is the reference."""
+    return _spread_kernel(np.ascontiguousarray(vis, dtype=bool), int(m))
+
+
+def spread_observations_numpy(vis: np.ndarray, m: int) -> np.ndarray:
+    """:func:`spread_observations` in numpy (the reference of :func:`_spread_kernel`)."""
     count = vis.sum(1)
     step = np.maximum(-(-count // m), 1)
     out = vis.copy()
@@ -165,6 +172,26 @@ def spread_observations(vis: np.ndarray, m: int) -> np.ndarray:
         v = vis[long]
         rank = np.cumsum(v, axis=1, dtype=np.int32) - 1
         out[long] = v & ((rank % step[long, None].astype(np.int32) == 0) | (rank == count[long, None] - 1))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _spread_kernel(vis, m):
+    """:func:`spread_observations`: per track its visible frames counted, then every ``step``-th one by rank and the
+    last kept, ``step = ceil(count / m)`` (at least 1)."""
+    n, T = vis.shape
+    out = np.zeros((n, T), np.bool_)
+    for i in range(n):
+        count = 0
+        for t in range(T):
+            if vis[i, t]:
+                count += 1
+        step = max(-(-count // m), 1)
+        rank = 0
+        for t in range(T):
+            if vis[i, t]:
+                out[i, t] = step == 1 or rank % step == 0 or rank == count - 1
+                rank += 1
     return out
 
 

@@ -1,7 +1,7 @@
 """Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
-:mod:`trackingworld.optim.static_fit`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
+:mod:`trackingworld.optim.static_fit`, the spread frames of :mod:`trackingworld.optim.static_tests`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
 the nearest ends and the windows of the same depth of :mod:`trackingworld.optim.depth_movers`,
 the projections of :mod:`trackingworld.optim.photo_static` and the fields of :mod:`trackingworld.optim.ratio_field`
 on their first call and caches the machine code beside
@@ -21,7 +21,8 @@ import numpy as np
 def warm() -> float:
     """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
     took."""
-    from trackingworld.optim import ba_blocks, densify, depth_movers, photo_static, point_fit, ratio_field, static_fit
+    from trackingworld.optim import (ba_blocks, densify, depth_movers, photo_static, point_fit, ratio_field, static_fit,
+                                     static_tests)
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -47,6 +48,7 @@ def warm() -> float:
         static_fit.fit_points(R, t, pt, fr, uv[pt, fr], depth[pt, fr], K, weights, True, True, None, dc_weight, N)
     densify.propagate_ratio(uv[:, 0], depth[:, 0], np.ones(N), uv[:, 1], depth[:, 1], K)  # the IDW mean
     densify.thinned_observations(uv, vis, 4.0)  # the video depth's references
+    static_tests.spread_observations(vis, 2)  # the frames the static fits and tests read
     depth_movers.blur_tolerant(np.zeros(N), np.ones(N), -np.ones(N))  # the depth-mover test's nearest ends
     windows = depth_movers.BilateralWindows.build(fr, uv[pt, fr], np.log(depth[pt, fr]), T, (240, 320), 20.0, 0.1)
     windows.fractions([np.ones(len(pt), bool)])  # its windows of the same prior depth

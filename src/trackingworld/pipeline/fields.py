@@ -66,17 +66,16 @@ def corrected_prior(D, uv, vis, fields) -> np.ndarray:
 
 
 def edge_free_prior(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.ndarray, sigma: float,
-               base: np.ndarray) -> np.ndarray:
-    """``[N,T]`` metres: at the tracks ``idx`` the prior averaged over those tracks' own pixels away from the
-    depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the other's blur; ``base``
-    [N,T] at the others. uv [N,T,2] px, vis [N,T]. The tracks are selected through the visibility rather than
-    copied out (120 frames: 1.8 -> 0.7 s)."""
+                    base: np.ndarray, in_place: bool = False) -> np.ndarray:
+    """``[N,T]`` metres: at the visible observations of the tracks ``idx`` the prior averaged over those tracks' own
+    pixels away from the depth edges (optim.edge_prior.inner_prior), so one side of an edge does not read the
+    other's blur; ``base`` [N,T] everywhere else. uv [N,T,2] px, vis [N,T]. The tracks are selected through the
+    visibility rather than copied out (120 frames: 1.8 -> 0.7 s), and their samples written into a copy of
+    ``base`` (``in_place``: into ``base`` itself) rather than into a new ``[N,T]`` array merged with it."""
     member = np.zeros(len(vis), bool)
     member[idx] = True
     seen = vis & member[:, None]
-    out = sample_maps(inner_prior(prior, uv, seen, sigma), uv, seen)
-    out[~member] = base[~member]
-    return out
+    return sample_maps(inner_prior(prior, uv, seen, sigma), uv, seen, out=base if in_place else base.copy())
 
 
 REFERENCE_CELL_PX = 4.0  # the scale propagation's references: one visible observation per this many px square
@@ -95,8 +94,14 @@ def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = REFERENCE_CEL
             member = np.zeros(len(vis), bool)
             member[tracks] = True
         n, t = thinned_observations(uv, vis, cell, member)
+    return n, t, observation_ratios(xyz, poses, n, t, D[n, t])
+
+
+def observation_ratios(xyz, poses, n, t, depth) -> np.ndarray:
+    """``[R]``: camera z of the world points ``xyz[n, t]`` (``xyz [N,T,3]`` metres, poses camera-to-world
+    ``[T,4,4]``) over the prior's depth ``depth [R]`` metres at those observations ``(n [R], t [R])``."""
     z = transform(invert_pose(poses)[t], xyz[n, t])[:, 2]
-    return n, t, z / np.maximum(D[n, t], 1e-6)
+    return z / np.maximum(depth, 1e-6)
 
 
 def stage3_target(mode: str, xyz, uv, vis, D, dyn, static, poses, K, shape: tuple[int, int] | None = None,

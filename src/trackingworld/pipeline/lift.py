@@ -10,11 +10,24 @@ from trackingworld.optim.parallel import each_frame
 
 
 def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = None,
-                fill: float = 1.0) -> np.ndarray:
+                fill: float = 1.0, out: np.ndarray | None = None) -> np.ndarray:
     """Bilinear sample of ``maps [T,H,W]`` at ``uv [N,T,2]`` (border replicated) -> ``[N,T]`` float32.
     With ``visible [N,T]`` only the visible observations are sampled and the others are ``fill`` (finite, so
-    that masked terms stay zero): a dense video's hidden entries of ``[N,T]`` outgrow the visible ones."""
+    that masked terms stay zero): a dense video's hidden entries of ``[N,T]`` outgrow the visible ones. ``out``
+    ``[N,T]`` float32 (with ``visible``): the samples written into it at the visible observations, the others left
+    as they are (no new ``[N,T]`` array); returned."""
     N, T = uv.shape[:2]
+    if out is not None:
+        if visible is None:
+            raise ValueError("sample_maps: out needs visible")
+        vis_t = np.ascontiguousarray(visible.T)
+
+        def into(t: int) -> None:
+            v = np.flatnonzero(vis_t[t])
+            out[v, t] = sample_image(maps[t].astype(np.float32), uv[v, t].astype(np.float32))
+
+        each_frame(into, range(T))  # each frame writes its own column: the same numbers on any number of threads
+        return out
     if visible is None:
         per_frame = np.ascontiguousarray(uv.transpose(1, 0, 2), np.float32)  # [T,N,2]: one contiguous read a frame
         out = np.empty((T, N), np.float32)
@@ -30,6 +43,24 @@ def sample_maps(maps: np.ndarray, uv: np.ndarray, visible: np.ndarray | None = N
 
     each_frame(frame, range(T))  # on the CPUs' threads (OpenCV and numpy let go of the GIL): the same numbers
     return np.ascontiguousarray(out.T)
+
+
+def sample_observations(maps: np.ndarray, uv: np.ndarray, n: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``maps [T,H,W]`` sampled bilinearly (border replicated) at the observations ``(n [R], t [R])`` of the tracks
+    ``uv [N,T,2]`` px -> ``[R]`` float32: the numbers :func:`sample_maps` gives there, without its ``[N,T]`` array
+    (the video depth reads the prior at its thinned references only: 120 frames, 257k tracks, 0.8 s -> 0.05 s).
+    Frame by frame, the observations in any order."""
+    out = np.empty(len(n), np.float32)
+    order = np.argsort(t, kind="stable")
+    bounds = np.searchsorted(t[order], np.arange(maps.shape[0] + 1))
+
+    def frame(f: int) -> None:
+        o = order[bounds[f]:bounds[f + 1]]
+        if len(o):
+            out[o] = sample_image(maps[f].astype(np.float32), uv[n[o], f].astype(np.float32))
+
+    each_frame(frame, range(maps.shape[0]))
+    return out
 
 
 def lift_camera_frame(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -13,7 +13,8 @@ import numpy as np
 
 from trackingworld.optim.densify import pixel_grid, pixel_neighbours, ratio_maps, thinned_observations
 from trackingworld.optim.parallel import FramesAhead, core_taken
-from trackingworld.pipeline.fields import REFERENCE_CELL_PX, reference_ratios
+from trackingworld.pipeline.fields import REFERENCE_CELL_PX, observation_ratios
+from trackingworld.pipeline.lift import sample_observations
 
 K_NEAREST = 4  # references per pixel
 # the most memory the neighbours searched ahead may hold (int32, k = 4: 6.6 MB a frame of 854x480 pixels, so 77
@@ -73,19 +74,21 @@ class SearchAhead:
         self._idle.wait()
 
 
-def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, D_raw: np.ndarray, poses: np.ndarray,
-                prior: np.ndarray, K: np.ndarray, ahead: SearchAhead | None = None) -> tuple[np.ndarray, int]:
-    """The consistent video depth ``[T,h,w]`` float32 metres: each pixel's prior times the ratio ``z / prior``
-    (``z`` the camera depth of the world positions ``xyz``, ``D_raw [N,T]`` the raw prior at the tracks) of its
-    :data:`K_NEAREST` nearest thinned reference observations, inverse-distance weighted. ``ahead``: the part
+def video_depth(uv: np.ndarray, vis: np.ndarray, xyz: np.ndarray, poses: np.ndarray, prior: np.ndarray,
+                K: np.ndarray, ahead: SearchAhead | None = None) -> tuple[np.ndarray, int]:
+    """The consistent video depth ``[T,h,w]`` float32 metres: each pixel's raw prior (``prior [T,h,w]``) times the
+    ratio ``z / prior`` (``z`` the camera depth of the world positions ``xyz``, the prior read at the track) of its
+    :data:`K_NEAREST` nearest thinned reference observations, inverse-distance weighted. The prior is sampled at
+    those references only, not at every observation (``pipeline.lift.sample_observations``). ``ahead``: the part
     searched ahead (:class:`SearchAhead`; finished here). Returns the maps and the frames whose search was done
     ahead."""
-    refs = None
     if ahead is not None:  # its core back first: the frames it did not reach run on every core
         ahead.finish()
-        refs = ahead.references()
-    n, t, ratio = reference_ratios(None, uv, vis, xyz, D_raw, poses, REFERENCE_CELL_PX, refs)
+        n, t = ahead.references()
+    else:
+        n, t = thinned_observations(uv, vis, REFERENCE_CELL_PX)
+    d = sample_observations(prior, uv, n, t)
+    ratio = observation_ratios(xyz, poses, n, t, d)
     neighbours = None if ahead is None else ahead.frames.take
-    depth = ratio_maps(t, uv[n, t], D_raw[n, t], ratio, prior.astype(np.float64), K, K_NEAREST,
-                       neighbours=neighbours) * prior
+    depth = ratio_maps(t, uv[n, t], d, ratio, prior.astype(np.float64), K, K_NEAREST, neighbours=neighbours) * prior
     return depth, 0 if ahead is None else ahead.frames.done

@@ -130,13 +130,13 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     qf = tr.queries[:, 0].astype(np.int64)
     info: dict = {"tracks": int(N)}
     with tm("labels"):
-        D_raw = sample_maps(prior, tr.tracks, vis)  # float32 metres, 1 where hidden (never read)
+        D = sample_maps(prior, tr.tracks, vis)  # float32 metres, 1 where hidden (never read)
         labels = label_tracks(tr.tracks, vis, qf, masks, cfg.mask_margin_px)
         static_idx = np.flatnonzero(labels == STATIC)
-        D = D_raw  # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior)
+        # the depth the stages read: on the static tracks away from the depth edges (optim.edge_prior); the video
+        # depth reads the raw prior at its references itself
         if cfg.dc_edge_sigma_px > 0 and len(static_idx):
-            D = edge_free_prior(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D_raw)
-            D_raw = None  # sampled again for the video depth: not held through the stages (4 bytes an entry)
+            D = edge_free_prior(prior, uv, vis, static_idx, cfg.dc_edge_sigma_px, D, in_place=True)
         reps = static_idx[cell_representatives(tr.queries[static_idx], cfg.downsample_cell)]
         # the observations the stages optimise: all of these tracks' (the paper) or a capped number per frame
         obs = cell_cap_mask(tr.tracks[reps], vis[reps], qf[reps], cfg.downsample_cell, cfg.cell_cap)
@@ -303,11 +303,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
     target = carry = None  # let go: [Nd,T] and the carrying's [Nd,T,3] (now in xyz)
 
     with tm("video_depth"):
-        # the raw prior here: the ratios scale the raw prior's maps
-        if D_raw is None:  # the same numbers where the video depth reads them, the observations seen now
-            D_raw = sample_maps(prior, uv, vis)
-        depth, info["video_depth_ahead_frames"] = video_depth(uv, vis, xyz, D_raw, poses, prior, K, ahead)
-    D_raw = D = None  # not read below: let go (each [N,T]; 1.4M tracks x 150 frames, 0.84 GB)
+        # the raw prior here (the ratios scale the raw prior's maps), read at the references by the video depth
+        depth, info["video_depth_ahead_frames"] = video_depth(uv, vis, xyz, poses, prior, K, ahead)
+    D = None  # not read below: let go ([N,T]; 1.4M tracks x 150 frames, 0.84 GB)
     if cfg.photo_static_grey > 0 and frames is not None:
         with tm("photo_static"):
             # dynamic tracks that are static points dragged off by a mover's flow, found by their colours; last, so
