@@ -1,7 +1,8 @@
 """Compile the CPU kernels once, at install time (``make setup`` runs ``python -m trackingworld.optim.warmup``).
 
 numba compiles :mod:`trackingworld.optim.point_fit`, :mod:`trackingworld.optim.ba_blocks`,
-:mod:`trackingworld.optim.static_fit`, the spread frames of :mod:`trackingworld.optim.static_tests`, the weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
+:mod:`trackingworld.optim.static_fit`, the spread frames of :mod:`trackingworld.optim.static_tests`, the
+weighted mean and the thinning of :mod:`trackingworld.optim.densify`,
 the nearest ends and the windows of the same depth of :mod:`trackingworld.optim.depth_movers`,
 the projections of :mod:`trackingworld.optim.photo_static` and the fields of :mod:`trackingworld.optim.ratio_field`
 on their first call and caches the machine code beside
@@ -21,8 +22,16 @@ import numpy as np
 def warm() -> float:
     """Call every compiled kernel once (compiling it, or loading it from numba's cache). Returns the seconds it
     took."""
-    from trackingworld.optim import (ba_blocks, densify, depth_movers, photo_static, point_fit, ratio_field, static_fit,
-                                     static_tests)
+    from trackingworld.optim import (
+        ba_blocks,
+        densify,
+        depth_movers,
+        photo_static,
+        point_fit,
+        ratio_field,
+        static_fit,
+        static_tests,
+    )
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
