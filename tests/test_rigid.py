@@ -399,7 +399,7 @@ def test_camera_depths_where_indexed_are_those_of_the_whole_array():
 
 
 def test_rows_read_as_the_copied_rows_for_every_index_the_step_uses():
-    from trackingworld.optim.rigid import Rows
+    from trackingworld.optim.rows import Rows
 
     a = np.arange(7 * 4 * 2, dtype=np.float32).reshape(7, 4, 2)
     rows = np.array([6, 1, 3, 4])
@@ -414,7 +414,7 @@ def test_rows_read_as_the_copied_rows_for_every_index_the_step_uses():
 
 def test_tracks_read_in_place_from_every_track_give_the_numbers_of_their_copies():
     # the pipeline hands the step the dynamic tracks as rows of its arrays of every track (Rows), not copies
-    from trackingworld.optim.rigid import Rows
+    from trackingworld.optim.rows import Rows
 
     uv, vis, X, z, poses, K, qf = _scene(rigid=True)
     start = _lift(uv, z * 1.05, poses, K).astype(np.float32)

@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 from trackingworld.geometry import camera_depths, depth_along, invert_pose, pose_from_rt, rigid_transform, transform
 from trackingworld.optim import lie, point_fit, stage2
 from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
+from trackingworld.optim.rows import Rows
 
 
 @dataclass
@@ -131,38 +132,6 @@ def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z, qf: np.ndarray, s: Rigid
         keep = (a != b) & (_log_ratio(z[a, t], z[b, t]) <= s.depth_tol)
         pairs.append(np.stack([a[keep], b[keep]], 1))
     return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
-
-
-class Rows:
-    """The rows ``rows [n]`` of an array ``array [M,...]`` read as an ``[n,...]`` array, without copying them out:
-    ``Rows(a, rows)[key] == a[rows][key]`` for ``key`` an index, an index array, a boolean mask of the ``n`` rows or
-    a tuple whose first item is one of those (``np.ix_``'s too). The rigid step reads the dynamic tracks' pixels and
-    positions this way from the pipeline's arrays of every track (a copy of the dynamic ones: 20 bytes an
-    observation at the step's peak)."""
-
-    def __init__(self, array: np.ndarray, rows: np.ndarray):
-        self.array, self.rows = array, np.asarray(rows)
-        self.shape = (len(self.rows),) + array.shape[1:]
-        self.dtype = array.dtype
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def of(self, idx) -> np.ndarray:
-        """The rows of ``array`` that index ``idx`` (as above, or a slice) of these rows takes."""
-        if isinstance(idx, slice):
-            return self.rows[idx]
-        idx = np.asarray(idx)
-        return self.rows[np.flatnonzero(idx) if idx.dtype == np.bool_ else idx]
-
-    def __getitem__(self, key):
-        if isinstance(key, tuple):
-            return self.array[(self.of(key[0]),) + key[1:]]
-        return self.array[self.of(key)]
-
-    def copy(self) -> np.ndarray:
-        """``array[rows]``: the rows copied out."""
-        return self.array[self.rows]
 
 
 def _pixel_rows(uv, idx):

@@ -24,6 +24,7 @@ from numba import njit
 from trackingworld.config import OptimConfig
 from trackingworld.optim import stage2
 from trackingworld.optim.densify import propagate_ratio
+from trackingworld.optim.rows import Rows
 from trackingworld.optim.slip import frames_around, long_runs, run_around
 
 FIT_CHUNK = 1 << 17  # tracks per chunk of the as-static fits and tests (bounds their memory at large videos)
@@ -67,7 +68,7 @@ def chunks(tracks, vis, frames: int):
 def fits_static_chunked(tracks, uv, D, vis, K, R, t, cfg: OptimConfig, device):
     """:func:`fits_static` of ``tracks`` [n] (indices), from at most about ``cfg.test_frames`` of each one's
     visible frames, in float32 and in chunks (:func:`chunks`)."""
-    out = [fits_static(uv[c], D[c], vc, K, R, t, cfg, torch.float32, device)
+    out = [fits_static(Rows(uv, c), Rows(D, c), vc, K, R, t, cfg, torch.float32, device)
            for c, vc in chunks(tracks, vis, cfg.test_frames)]
     return tuple(np.concatenate(x) for x in zip(*out, strict=True))
 
@@ -83,8 +84,8 @@ def slip_runs(tracks, uv, D, vis, qf, px, K, R, t, cfg: OptimConfig, device) -> 
     for a in range(0, len(tracks), FIT_CHUNK):
         c = tracks[a:a + FIT_CHUNK]
         near = frames_around(vis[c], qf[c], cfg.slip_window)
-        _, Rf, tf, Xc = static_points(uv[c], D[c], near, K, R, t, cfg, torch.float32, device)
-        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
+        _, Rf, tf, Xc = static_points(Rows(uv, c), Rows(D, c), near, K, R, t, cfg, torch.float32, device)
+        pc = stage2.BAProblem.from_tracks(Rows(uv, c), Rows(D, c), vis[c], K, cfg, torch.float32, device)
         err = np.full(vis[c].shape, np.inf, np.float32)
         err[pc.pt.cpu().numpy(), pc.fr.cpu().numpy()] = stage2.residuals(Rf, tf, Xc, pc)[1].norm(dim=-1).cpu().numpy()
         run[a:a + len(c)] = run_around(vis[c], err > px[a:a + len(c), None], qf[c])
@@ -125,7 +126,7 @@ def static_outliers(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device) 
     out = np.zeros((len(tracks), vis.shape[1]), bool)
     for a in range(0, len(tracks), FIT_CHUNK):
         c = tracks[a:a + FIT_CHUNK]
-        pc = stage2.BAProblem.from_tracks(uv[c], D[c], vis[c], K, cfg, torch.float32, device)
+        pc = stage2.BAProblem.from_tracks(Rows(uv, c), Rows(D, c), vis[c], K, cfg, torch.float32, device)
         X = torch.as_tensor(xyz[c, 0], dtype=torch.float32, device=pc.uv.device)
         far = (stage2.offset_norms(R.float(), t.float(), X, pc) >= cfg.epsilon).cpu().numpy()
         rows, cols = np.nonzero(vis[c])  # the problem's observations, track-major, frames ascending
@@ -200,4 +201,5 @@ def fit_static_points(tracks, uv, D, vis, xyz, K, R, t, cfg: OptimConfig, device
     objective with ``cfg``'s weights against the prior ``D``), from at most about ``static_fit_frames`` of its
     visible frames, in float32 and in chunks (:func:`chunks`)."""
     for c, vf in chunks(tracks, vis, cfg.static_fit_frames):
-        xyz[c] = static_points(uv[c], D[c], vf, K, R, t, cfg, torch.float32, device, iters)[3].cpu().numpy()[:, None]
+        X = static_points(Rows(uv, c), Rows(D, c), vf, K, R, t, cfg, torch.float32, device, iters)[3]
+        xyz[c] = X.cpu().numpy()[:, None]

@@ -17,7 +17,8 @@ from trackingworld.optim import lie, stage3
 from trackingworld.optim.densify import cell_cap_mask, cell_representatives, propagate_ratio
 from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.parallel import core_taken, torch_threads, worker_threads
-from trackingworld.optim.rigid import RigidSettings, Rows, rigid_movers
+from trackingworld.optim.rigid import RigidSettings, rigid_movers
+from trackingworld.optim.rows import Rows
 from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
