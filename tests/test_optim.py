@@ -834,7 +834,7 @@ def test_sample_maps_reads_only_the_visible_observations_when_asked():
 def test_edge_free_prior_writes_its_tracks_visible_samples_over_the_base(in_place):
     # the tracks idx read the edge-free maps where visible; every other entry is the base's, as it was
     from trackingworld.optim.edge_prior import inner_prior
-    from trackingworld.pipeline.fields import edge_free_prior
+    from trackingworld.pipeline.fields import edge_free_prior, edge_free_rows
     from trackingworld.pipeline.lift import sample_maps
 
     rng = np.random.default_rng(1)
@@ -853,6 +853,8 @@ def test_edge_free_prior_writes_its_tracks_visible_samples_over_the_base(in_plac
     np.testing.assert_array_equal(got[seen], sample_maps(inner_prior(maps, uv, seen, 2.0), uv, seen)[seen])
     np.testing.assert_array_equal(got[~seen], kept[~seen])
     assert not np.array_equal(got[seen], kept[seen])  # the edge-free maps differ from the prior
+    # the rows of idx alone (stage 3's), the same numbers
+    np.testing.assert_array_equal(edge_free_rows(maps, uv, vis, idx, 2.0, kept), got[idx])
 
 
 def test_stage2_solved_again_without_a_movers_observations_is_closer_to_the_true_poses():

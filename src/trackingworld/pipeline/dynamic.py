@@ -19,7 +19,7 @@ from trackingworld.optim.hidden import carry_hidden
 from trackingworld.optim.parallel import core_taken, torch_threads, worker_threads
 from trackingworld.optim.rigid import RigidSettings, rigid_movers
 from trackingworld.optim.rows import Rows
-from trackingworld.pipeline.fields import FieldSettings, edge_free_prior, stage3_target
+from trackingworld.pipeline.fields import FieldSettings, edge_free_rows, stage3_target
 from trackingworld.tracking2d.base import hold_invisible
 
 
@@ -34,11 +34,12 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     the dynamic tracks ``[len(dyn),T]`` metres, None without dynamic tracks; None, or with ``defer_carry`` where
     :func:`can_defer_carry` allows, the carrying of the hidden frames not yet done: a function that returns the
     carried positions ``[len(dyn),T,3]``, for :func:`place_rigid` to run beside the rigid step)."""
-    D3 = D  # stage 3's prior: on the dynamic tracks away from their objects' blurred rims (optim.edge_prior)
+    # stage 3's prior of the dynamic tracks [len(dyn),T]: away from their objects' blurred rims (optim.edge_prior)
+    D3 = D[dyn]
     if cfg.dc_edge_sigma_px > 0 and len(dyn):
-        D3 = edge_free_prior(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
-    target = stage3_target(cfg.dc_target, xyz, uv, vis, D3, dyn, static, poses, K, prior.shape[1:],
-                           FieldSettings.stage3(cfg), thinned)
+        D3 = edge_free_rows(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
+    target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, static, poses, K, prior.shape[1:],
+                           FieldSettings.stage3(cfg), thinned, D3)
     if not len(dyn):
         return None, None
     qf = queries[:, 0].astype(np.int64)
@@ -59,8 +60,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     if cfg.carry_k > 0:
         # the image motion's weight in the donors' search: the distance two tracks drift apart in
         # carry_motion_frames frames at the dynamic tracks' median depth, per px per frame of difference
-        few = dyn[:: max(1, len(dyn) // 4000)]
-        z = D3[few][vis[few]]
+        few = slice(None, None, max(1, len(dyn) // 4000))
+        z = D3[few][vis[dyn[few]]]
         scale = cfg.carry_motion_frames * float(np.median(z)) / focal_length(K) if z.size else 0.0
         vis_d = vis[dyn]
 
