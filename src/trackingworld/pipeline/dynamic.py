@@ -35,9 +35,8 @@ def place_dynamic(dyn, static, queries, uv, vis, D, prior, xyz, poses, K, cfg: O
     :func:`can_defer_carry` allows, the carrying of the hidden frames not yet done: a function that returns the
     carried positions ``[len(dyn),T,3]``, for :func:`place_rigid` to run beside the rigid step)."""
     # stage 3's prior of the dynamic tracks [len(dyn),T]: away from their objects' blurred rims (optim.edge_prior)
-    D3 = D[dyn]
-    if cfg.dc_edge_sigma_px > 0 and len(dyn):
-        D3 = edge_free_rows(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D)
+    edge_free = cfg.dc_edge_sigma_px > 0 and len(dyn)
+    D3 = edge_free_rows(prior, uv, vis, dyn, cfg.dc_edge_sigma_px, D) if edge_free else D[dyn]
     target = stage3_target(cfg.dc_target, xyz, uv, vis, D, dyn, static, poses, K, prior.shape[1:],
                            FieldSettings.stage3(cfg), thinned, D3)
     if not len(dyn):
