@@ -9,6 +9,7 @@ from trackingworld.errors import InputError
 from trackingworld.optim.labels import depth_in_mask
 from trackingworld.pipeline import world
 from trackingworld.pipeline.world import check_optim
+from trackingworld.tracking2d.base import TrackResult
 
 
 def test_depth_in_mask_is_the_distance_to_the_nearest_pixel_outside_in_the_query_frame():
@@ -46,3 +47,26 @@ def test_a_negative_core_depth_is_refused():
     with pytest.raises(InputError, match="mask_core_px -1.0: the depth inside the masks"):
         check_optim(OptimConfig(mask_core_px=-1.0))
     check_optim(OptimConfig(mask_core_px=0.0))
+
+
+def test_a_masked_mover_seen_in_few_frames_keeps_its_core_dynamic_through_the_vote():
+    """A patch of the wall sliding down 2 px a frame (10 cm at 5 m), its tracks seen in frames 0-5 only (a mover
+    that leaves early), under a coarse mask 6 px wider than it. All its tracks are seen in at most ``vote_short``
+    frames, so the vote of the short tracks judges them, and its only long voters are the static wall's: the
+    tracks 10 px or more inside the mask keep the mask's label (they vote but are not voted on), where before the
+    whole patch came out static."""
+    from test_own_test import MOVER_REGION, _slow_mover_scene
+
+    tr, prior, short_mover, long_mover, _ = _slow_mover_scene(short_len=6)
+    patch = np.r_[short_mover, long_mover]
+    tracks, vis = tr.tracks.copy(), tr.visible.copy()
+    tracks[patch, :, 1] += 1.2 * np.arange(tracks.shape[1])  # 0.8 + 1.2 = 2 px a frame
+    vis[patch, 6:] = False
+    tr = TrackResult(tracks, vis, tr.confidence, tr.queries)
+    x0, x1, y0, y1 = MOVER_REGION
+    masks, _ = masked_box(prior.shape, tr.queries, (x0 - 6, x1 + 6, y0 - 6, y1 + 6))
+    core = patch[depth_in_mask(tr.tracks, np.zeros(len(vis), np.int64), masks)[patch] >= 10]
+    out = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False), {})
+    assert vis[patch].sum(1).max() <= OptimConfig().vote_short and len(core) >= 200
+    assert out["is_dynamic"][core].all()
+    assert out["is_dynamic"][patch].mean() > 0.5

@@ -170,7 +170,7 @@ def rebuild_static(labels, s2, ok_s2, moving_s2, vis, qf, D, poses, fits: Static
 
 
 def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, colours, info: dict,
-                      shape: tuple[int, int]) -> None:
+                      shape: tuple[int, int], core: np.ndarray | None = None) -> None:
     """(not in the paper) A track seen once cannot be tested, and one seen in ``vote_short`` frames or fewer
     cannot fail the test: each takes the verdict of the tracks seen in more frames nearest it (one per query frame
     and VOTE_CELL_PX square, prior-lifted 3D distance and ``colours [N,3]`` at the query pixels), the depth-mover
@@ -179,13 +179,19 @@ def vote_short_tracks(once, queries, vis, D, fits: StaticFits, dynamic, xyz, col
     its query frame takes instead, after the others are settled, the vote of every track seen in two frames or
     more (one per query frame and VOTE_CELL_PX square): at an image border the camera leaves, the nearest long
     tracks to a strip seen once may all lie on a mover beside it, beyond the short static ones. ``once``: the
-    tracks seen once that :func:`rebuild_static` placed; ``queries [N,3]``; ``shape`` (H, W) of the frames."""
+    tracks seen once that :func:`rebuild_static` placed; ``queries [N,3]``; ``shape`` (H, W) of the frames.
+    ``core [N]`` bool: the tracks deep inside the masks (``mask_core_px``), whose dynamic label stands here as in
+    :func:`classify_masked`: they vote but are not voted on. Without that, a masked mover seen in ``vote_short``
+    frames or fewer (one that enters late or leaves early, or any mover of a video of about that length) had only
+    the background's long tracks for voters and was voted static whole."""
     cfg, K, uv = fits.cfg, fits.K, fits.uv
     qf = queries[:, 0].astype(np.int64)
     seen = vis.sum(1)
     voters = np.flatnonzero(seen > cfg.vote_short)
     voters = voters[cell_representatives(queries[voters], VOTE_CELL_PX)]
     short_multi = np.flatnonzero((seen >= 2) & (seen <= cfg.vote_short))
+    if core is not None:  # the masks' cores keep their label
+        once, short_multi = once[~core[once]], short_multi[~core[short_multi]]
     far = far_from(once, voters, uv, vis, qf, cfg.vote_once_gap_px, shape)
     first, later = once[~far], once[far]  # the tracks seen once voted with the short ones / after them
     short = np.union1d(first, short_multi)

@@ -266,7 +266,7 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                       f"extremes ({how})", file=sys.stderr, flush=True)
     if cfg.own_test:
         with tm("rebuild_static"):
-            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:])
+            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:], core)
             steps.after("vote", dynamic)
     if cfg.static_outliers and p.offsets:
         with tm("static_outliers"):
