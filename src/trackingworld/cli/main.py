@@ -392,8 +392,9 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                         "residual is at most this many px (0: the offset test alone)")
     g.add_argument("--mask-core-px", type=float, default=d.mask_core_px, metavar="PX",
                    help="(not in the paper) a track whose query pixel lies this deep inside the coarse mask or deeper "
-                        "keeps the masks' dynamic label untested (the static points a dilated mask covers lie in a "
-                        "band along its border; 0: every masked track gets the as-static test; default %(default)s)")
+                        "keeps the masks' dynamic label, untested and not voted on (the static points a dilated mask "
+                        "covers lie in a band along its border; 0: every masked track gets the as-static test and "
+                        "the short ones the vote; default %(default)s)")
     g.add_argument("--slip-run", type=float, default=d.slip_run, metavar="FRAC",
                    help="(not in the paper) a masked or ambiguous track, or one the vote calls moving, that fails the "
                         "static test is static when "
