@@ -205,6 +205,40 @@ def chain_clips(frames: list[list[int]], R: torch.Tensor, t: torch.Tensor, T: in
     return out
 
 
+MIN_POSE_TRACKS = 10  # static tracks a frame's pose is fitted to, below which the run says the pose is weak
+
+
+def weak_frames(vis: np.ndarray, min_tracks: int = MIN_POSE_TRACKS) -> np.ndarray:
+    """``[k]`` frame indices where fewer than ``min_tracks`` of the static tracks the poses are fitted to are
+    visible (``vis [n,T]``): a pose there rests on too few points, and where none is seen the camera is held (its
+    clip's relative motion stays the identity)."""
+    return np.flatnonzero(vis.sum(0) < min_tracks)
+
+
+def frame_ranges(frames: np.ndarray) -> str:
+    """Sorted frame indices as runs: ``[0 1 2 5 7 8]`` -> ``"0-2, 5, 7-8"``."""
+    frames = np.asarray(frames, np.int64)
+    if not frames.size:
+        return ""
+    cut = np.flatnonzero(np.diff(frames) != 1) + 1
+    runs = np.split(frames, cut)
+    return ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs)
+
+
+def pose_support_warning(weak: np.ndarray, T: int, static: int, tracks: int,
+                         min_tracks: int = MIN_POSE_TRACKS) -> str | None:
+    """One line for the user where the static tracks cannot place the cameras (None where they can): ``weak`` the
+    frames of :func:`weak_frames` out of ``T``, ``static`` of ``tracks`` tracks outside the masks."""
+    if not len(weak):
+        return None
+    masked = f"the masks cover {100 * (1 - static / max(tracks, 1)):.0f}% of the {tracks:,} tracks"
+    if len(weak) == T and static == 0:
+        return (f"no static track to place the cameras on ({masked}): every frame keeps the first one's pose (a "
+                f"fixed camera); if the camera moves, check the masks (non-zero = dynamic)")
+    return (f"frame{'s' if len(weak) > 1 else ''} {frame_ranges(weak)} of {T}: fewer than {min_tracks} static tracks "
+            f"to place the camera on ({masked}); those poses are weak, and held where none is seen")
+
+
 def initial_poses(uv: np.ndarray, depth: np.ndarray, vis: np.ndarray, K: np.ndarray, cfg: OptimConfig,
                   rng: np.random.Generator, device: str = "cpu", log=None):
     """Stage 1. uv [N,T,2] px, depth [N,T] prior metres, vis [N,T] of the static tracks, K [3,3].

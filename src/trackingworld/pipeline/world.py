@@ -26,7 +26,7 @@ from trackingworld.optim.densify import cell_cap_mask, cell_representatives
 from trackingworld.optim.label_steps import LabelSteps
 from trackingworld.optim.labels import AMBIGUOUS, DYNAMIC, STATIC, depth_in_mask, label_tracks
 from trackingworld.optim.parallel import worker_threads
-from trackingworld.optim.stage1 import initial_poses
+from trackingworld.optim.stage1 import initial_poses, pose_support_warning, weak_frames
 from trackingworld.optim.static_tests import moving_tracks
 from trackingworld.pipeline.baseline import sample_colors
 from trackingworld.pipeline.dynamic import place_dynamic, place_rigid
@@ -51,7 +51,7 @@ from trackingworld.pipeline.static_side import (
 )
 from trackingworld.pipeline.video_depth import SearchAhead, video_depth
 from trackingworld.priors.sources import intrinsics_given
-from trackingworld.progress import stage_logger
+from trackingworld.progress import stage_logger, warn
 from trackingworld.tracking2d.base import TrackResult
 
 
@@ -145,6 +145,9 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
         info.update(static=int(len(static_idx)), dynamic_masks=int((labels == DYNAMIC).sum()),
                     ambiguous=int((labels == AMBIGUOUS).sum()), optimised_static=int(len(s2)))
 
+    # frames whose pose the static tracks cannot place: said once, in optim.json too
+    info["pose_warning"] = pose_support_warning(weak_frames(obs2), T, len(static_idx), N)
+    warn(info["pose_warning"], cfg.verbose, "stage1")
     with tm("stage1"):
         if cfg.no_pose_init or len(s2) == 0:
             poses = np.tile(np.eye(4), (T, 1, 1))
