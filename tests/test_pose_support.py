@@ -7,6 +7,7 @@ from test_own_test import K, _wall_scene
 from trackingworld.config import OptimConfig
 from trackingworld.optim.stage1 import MIN_POSE_TRACKS, frame_ranges, pose_support_warning, weak_frames
 from trackingworld.pipeline import world
+from trackingworld.tracking2d.base import TrackResult
 
 
 def test_frame_ranges_joins_consecutive_frames():
@@ -22,6 +23,22 @@ def test_weak_frames_are_those_with_too_few_static_tracks_seen():
     assert pose_support_warning(weak_frames(np.ones((30, 6), bool)), 6, 30, 40) is None
     msg = pose_support_warning(weak_frames(vis), 6, 30, 40)
     assert msg.startswith("frames 2, 4 of 6: fewer than 10 static tracks") and "the masks cover 25% of the 40" in msg
+    assert "masks" not in pose_support_warning(weak_frames(vis), 6, 40, 40)  # nothing masked: the frames are bare
+
+
+def test_frames_no_track_reaches_keep_the_last_pose_and_are_named():
+    """Every track hidden from frame 5 on (8 frames): those frames are named, and their cameras held where stage 1
+    left them, at frame 4's."""
+    tr, prior, *_ = _wall_scene()
+    vis = tr.visible.copy()
+    vis[:, 5:] = False
+    tr = TrackResult(tr.tracks, vis, tr.confidence, tr.queries)
+    with pytest.warns(RuntimeWarning, match="frames 5-7 of 8: fewer than 10 static tracks seen"):
+        out = world.optimise(tr, prior, np.zeros(prior.shape, bool), K, OptimConfig(verbose=False), {})
+    held = out["poses_c2w"][5:]
+    np.testing.assert_allclose(held, np.repeat(held[:1], 3, 0), atol=1e-6)
+    np.testing.assert_allclose(held[0], out["poses_c2w"][4], atol=1e-3)  # stage 2 moved frame 4 by 0.1 mm
+    assert abs(out["poses_c2w"][4, 0, 3] - 0.2) < 0.01  # the frames seen are placed (5 cm a frame)
 
 
 def test_masks_over_every_track_hold_the_camera_and_say_so():

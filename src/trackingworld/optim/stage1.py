@@ -231,12 +231,13 @@ def pose_support_warning(weak: np.ndarray, T: int, static: int, tracks: int,
     frames of :func:`weak_frames` out of ``T``, ``static`` of ``tracks`` tracks outside the masks."""
     if not len(weak):
         return None
-    masked = f"the masks cover {100 * (1 - static / max(tracks, 1)):.0f}% of the {tracks:,} tracks"
+    masked = f" (the masks cover {100 * (1 - static / max(tracks, 1)):.0f}% of the {tracks:,} tracks)"
     if len(weak) == T and static == 0:
-        return (f"no static track to place the cameras on ({masked}): every frame keeps the first one's pose (a "
+        return (f"no static track to place the cameras on{masked}: every frame keeps the first one's pose (a "
                 f"fixed camera); if the camera moves, check the masks (non-zero = dynamic)")
     return (f"frame{'s' if len(weak) > 1 else ''} {frame_ranges(weak)} of {T}: fewer than {min_tracks} static tracks "
-            f"to place the camera on ({masked}); those poses are weak, and held where none is seen")
+            f"seen to place the camera on{masked if static < tracks else ''}; those poses are weak, and held where "
+            f"none is seen")
 
 
 def initial_poses(uv: np.ndarray, depth: np.ndarray, vis: np.ndarray, K: np.ndarray, cfg: OptimConfig,
