@@ -51,6 +51,7 @@ def test_run_with_resize_outputs_input_resolution(tiny_scene, tmp_path):
     assert r.tracks_2d[..., 0].max() > 100  # pixel coordinates at the input resolution
     rep = json.loads((out / "optim.json").read_text())  # what the optimiser found, per stage
     assert rep["stage2"]["loss"] <= rep["stage2"]["loss_init"] and "loss" in rep["stage1"]
+    assert rep["vote_core"] == "off"  # no --masks: the weight-free motion masks, whose cores the vote may take back
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -8,7 +8,7 @@ from trackingworld.config import OptimConfig
 from trackingworld.errors import InputError
 from trackingworld.optim.labels import depth_in_mask
 from trackingworld.pipeline import world
-from trackingworld.pipeline.world import check_optim
+from trackingworld.pipeline.world import check_optim, resolve_vote_core
 from trackingworld.tracking2d.base import TrackResult
 
 
@@ -72,3 +72,13 @@ def test_a_masked_mover_seen_in_few_frames_keeps_its_core_dynamic_through_the_vo
     assert vis[patch].sum(1).max() <= OptimConfig().vote_short and len(core) >= 200
     assert out[core].all()
     assert len(wall) >= 200 and not out[wall].any()
+    # --vote-core off (what auto gives the weight-free motion masks): the vote takes the core too, as before
+    off = world.optimise(tr, prior, masks, K, OptimConfig(verbose=False, vote_core="off"), {})["is_dynamic"]
+    assert not off[core].any()
+
+
+def test_the_vote_keeps_the_cores_with_masks_of_objects_only():
+    assert resolve_vote_core("auto", "objects") == "on" and resolve_vote_core("auto", "motion") == "off"
+    assert resolve_vote_core("off", "objects") == "off" and resolve_vote_core("on", "motion") == "on"
+    with pytest.raises(InputError, match="vote_core"):
+        check_optim(OptimConfig(vote_core="maybe"))

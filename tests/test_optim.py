@@ -462,6 +462,7 @@ def test_depth_mover_flags_over_the_cap_are_dropped(tiny_scene, tmp_path):
     assert free["depth_movers"] > 0 and "depth_movers_dropped" not in free
     assert main([*args, "--out", str(tmp_path / "capped"), "--depth-mover-max-share", "1e-6"]) == 0
     capped = json.loads((tmp_path / "capped" / "optim.json").read_text())
+    assert free["vote_core"] == "on"  # masks from a file: objects, whose cores the vote leaves alone
     assert capped["depth_movers"] == 0 and capped["depth_movers_dropped"]["flagged"] == free["depth_movers"]
     assert "depth_movers" not in capped["label_steps"] or capped["label_steps"]["depth_movers"]["dynamic"] == 0
 

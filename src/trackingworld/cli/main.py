@@ -316,6 +316,7 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
         STAGE3_LINEAR,
         STATIC_REBUILDS,
         TS_ORDERS,
+        VOTE_CORE,
         OptimConfig,
     )
 
@@ -453,6 +454,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper) a track seen once with none of its voters (tracks seen in more than "
                         "--vote-short frames) within PX takes the vote of every track seen in two frames or more "
                         "(inf: off)")
+    g.add_argument("--vote-core", default=d.vote_core, choices=VOTE_CORE,
+                   help="(not in the paper) the masks' cores (--mask-core-px) not voted on by the vote of the short "
+                        "tracks (auto: with masks of objects, a file or a segmentation model; not with the weight-free "
+                        "motion masks)")
     g.add_argument("--vote-flip-px", type=float, default=d.vote_flip_px, metavar="PX",
                    help="with --vote-short: the vote makes a short track dynamic only when its static fit misses a "
                         "pixel by more than this (0: always)")
@@ -562,7 +567,7 @@ def _optim_config(a):
         depth_mover_suspect=a.depth_mover_suspect,
         depth_mover_range_px=a.depth_mover_range,
         own_test=a.own_test, vote_colour_sigma=a.vote_colour_sigma, vote_k=a.vote_k, vote_short=a.vote_short,
-        vote_once_gap_px=a.vote_once_gap,
+        vote_once_gap_px=a.vote_once_gap, vote_core=a.vote_core,
         vote_flip_px=a.vote_flip_px, photo_static_grey=a.photo_static, photo_static_frac=a.photo_static_frac,
         photo_static_near_px=a.photo_static_near, photo_static_range=a.photo_static_range,
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,

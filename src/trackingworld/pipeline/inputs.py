@@ -45,6 +45,9 @@ class Inputs:
     # file); "estimated" (SfM, a depth model); "constant", no depth at all (--depth none, or SfM without parallax)
     depth_detail: str = "given"
     depth_note: str = ""  # why it is "constant", in words
+    # where the masks come from: "objects" (a file, a segmentation model: each mover's whole silhouette, dilated),
+    # "motion" (the weight-free motion masks: pixels whose motion the camera does not explain), "none"
+    masks_detail: str = "objects"
 
     @property
     def scale(self) -> tuple[float, float]:

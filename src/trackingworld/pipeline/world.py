@@ -269,7 +269,8 @@ def optimise(tr: TrackResult, prior: np.ndarray, masks: np.ndarray, K: np.ndarra
                       f"extremes ({how})", file=sys.stderr, flush=True)
     if cfg.own_test:
         with tm("rebuild_static"):
-            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:], core)
+            vote_short_tracks(once, tr.queries, vis, D, fits, dynamic, xyz, colours, info, prior.shape[1:],
+                              None if cfg.vote_core == "off" else core)
             steps.after("vote", dynamic)
     if cfg.static_outliers and p.offsets:
         with tm("static_outliers"):
@@ -443,6 +444,14 @@ def prior_limits(cfg: OptimConfig, detail: str, refine_focal: bool) -> tuple[Opt
     return cfg, refine_focal, off
 
 
+def resolve_vote_core(setting: str, masks_detail: str) -> str:
+    """``OptimConfig.vote_core`` for masks from ``masks_detail`` (``Inputs.masks_detail``): "auto" is "on" for masks
+    of objects, "off" for the weight-free motion masks, whose cores hold static background; "on" / "off" as given."""
+    if setting != "auto":
+        return setting
+    return "off" if masks_detail == "motion" else "on"
+
+
 def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dict | None = None,
                       report: dict | None = None) -> Result:
     """The full method on loaded inputs with their priors and dense tracks; see :func:`optimise`. ``report``
@@ -454,6 +463,8 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
     mode = cfg.optim.refine_focal
     refine = mode == "on" or (mode == "auto" and not intrinsics_given(cfg.inputs.intrinsics))
     optim_cfg, refine, off = prior_limits(cfg.optim, inp.depth_detail, refine)
+    # the masks' cores kept through the vote of the short tracks with masks of objects only (OptimConfig.vote_core)
+    optim_cfg = replace(optim_cfg, vote_core=resolve_vote_core(optim_cfg.vote_core, inp.masks_detail))
     if off and optim_cfg.verbose:
         print(f"{', '.join(f'[{o}] off' for o in off)}: {inp.depth_note}", file=sys.stderr, flush=True)
     colors = sample_colors(inp.frames, tr.queries)  # the result's, and the vote of the short tracks
@@ -461,6 +472,7 @@ def run_trackingworld(inp: Inputs, tr: TrackResult, cfg: RunConfig, timings: dic
                    inp.frames)
     if report is not None:
         report.update(out["info"])
+        report["vote_core"] = optim_cfg.vote_core  # as resolved for these masks
         if off:
             report["off_for_the_prior"] = {"steps": off, "why": inp.depth_note}
     K_in = inp.K_in.copy()

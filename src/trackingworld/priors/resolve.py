@@ -223,4 +223,4 @@ def resolve_priors(inp: Inputs, tr: TrackResult, cfg: RunConfig, cache_dir: Path
     K_in = inp.K_in if K_given else scale_intrinsics(K, W / w, H / h)
     detail, why = depth_detail(dsrc, info.sfm if dsrc == "sfm" else None)
     return replace(inp, depth=depth.astype(np.float32), masks=masks, K=K, K_in=K_in, depth_detail=detail,
-                   depth_note=why), info
+                   depth_note=why, masks_detail=msrc if msrc in ("motion", "none") else "objects"), info
