@@ -244,8 +244,9 @@ class OptimConfig:
     # scenes (stop 66, with the rigid step's final fits): world 3D accuracy 83.782 -> 83.817 (20 up, 25 down by at
     # most 0.67), `hard` 0 73.20 -> 74.43, `default` 23 +1.49; static kept 96.545 -> 96.540 (docs/lifting.md item 3;
     # at stop 64, before those fits, it cost `default` 22 5.4 points). Since stop 93 the vote of the short tracks
-    # leaves them alone too: a masked mover seen in vote_short frames or fewer was voted static whole by the
-    # background's long tracks (twelve 12-frame videos: dynamic recall 49.0 -> 85.0, world 3D accuracy 70.9 -> 75.5)
+    # leaves them alone too (vote_core, with masks of objects): a masked mover seen in vote_short frames or fewer
+    # was voted static whole by the background's long tracks (twelve 12-frame videos: dynamic recall 49.0 -> 85.0,
+    # world 3D accuracy 70.9 -> 75.5)
     mask_core_px: float = 10.0
     # (not in the paper) a masked / ambiguous track that fails that test (and a static-region track the vote calls
     # moving that fails its own test: ten scenes, static kept 92.23 -> 92.54) is static after all when its 2D track
