@@ -321,7 +321,8 @@ class OptimConfig:
     # whole (twelve 12-frame videos with the scenes' masks: dynamic recall 49.0 -> 85.0, world 3D accuracy 70.9 ->
     # 75.5). auto: on with masks of objects (a file, a segmentation model), off with the weight-free motion masks,
     # whose cores hold static background the vote takes back (eight scenes with them: static kept 94.57 -> 93.60
-    # with the rule on); on | off (docs/lifting.md item 3)
+    # with the rule on); on | off (docs/lifting.md item 3). The run resolves auto from the masks' source
+    # (pipeline.world.resolve_vote_core); optimise() called on arrays reads auto as on
     vote_core: str = "auto"
     # (not in the paper) a dynamic-labelled track is a static point the 2D tracker dragged along with a mover when that
     # point, lifted at its query pixel's depth (0.96-1.04 x the field-corrected prior), shows its query colour (within
