@@ -91,19 +91,16 @@ def edge_free_rows(prior: np.ndarray, uv: np.ndarray, vis: np.ndarray, idx: np.n
 REFERENCE_CELL_PX = 4.0  # the scale propagation's references: one visible observation per this many px square
 
 
-def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = REFERENCE_CELL_PX, observations=None):
+def reference_ratios(tracks, uv, vis, xyz, D, poses, cell: float = REFERENCE_CELL_PX):
     """The references of the appendix's scale propagation among ``tracks`` [n] (indices, a set: a cell keeps its
     lowest-index track; None: all), selected through a mask rather than copied out: one visible observation per
     ``cell`` px square of each frame, in frame order. Returns (track [R], frame [R], ratio [R] = camera z of its
-    world point / prior depth). ``observations``: (track [R], frame [R]) when already thinned."""
-    if observations is not None:
-        n, t = observations
-    else:
-        member = None
-        if tracks is not None:
-            member = np.zeros(len(vis), bool)
-            member[tracks] = True
-        n, t = thinned_observations(uv, vis, cell, member)
+    world point / prior depth)."""
+    member = None
+    if tracks is not None:
+        member = np.zeros(len(vis), bool)
+        member[tracks] = True
+    n, t = thinned_observations(uv, vis, cell, member)
     return n, t, observation_ratios(xyz, poses, n, t, D[n, t])
 
 
