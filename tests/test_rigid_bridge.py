@@ -102,6 +102,30 @@ def test_join_needs_the_later_group_where_the_earlier_one_would_be():
             assert frac < 0.1
 
 
+def test_join_needs_the_later_group_at_the_depth_the_earlier_one_would_be():
+    """A second object twice as far and twice as large, moving alike, projects where the first would be: it lands
+    on the image of the first's extension but not at its depth."""
+    rng = np.random.default_rng(4)
+    K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
+    centre = np.array([0.0, 0.0, -4.0])
+    poses = np.stack([look_at(centre, np.zeros(3))] * T)
+    pts = rng.uniform(-0.3, 0.3, (400, 3))
+    moving = _poses([0.0, 0.03, 0.0], [0.04, 0.0, 0.0], np.arange(T))
+    moving[:, :3, 3] += [-0.3, 0.0, 0.0]
+    Oa, uva, visa = _object(pts[:200], moving, np.arange(LAST_A + 1), K, poses)
+    a = RigidObject(Oa, np.arange(200), pts[:200], visa.copy())
+    far = moving.copy()  # world = centre + 2 (moving @ p - centre): the points 2p on this motion
+    far[:, :3, 3] = 2 * moving[:, :3, 3] - centre
+    Ob, uvb, visb = _object(2 * pts[200:], far, np.arange(FIRST_B, T), K, poses)
+    b = RigidObject(Ob, np.arange(200, 400), 2 * pts[200:], visb.copy())
+    uv, vis = np.r_[uva, uvb], np.r_[visa, visb]
+    xyz = np.zeros(uv.shape[:2] + (3,))
+    new, frac = join(a, b, uv, vis, xyz, poses, K, (W, H), BridgeSettings())
+    assert new is None and frac < 0.1
+    new, frac = join(a, b, uv, vis, xyz, poses, K, (W, H), BridgeSettings(depth_tol=0.0))  # the image alone
+    assert new is not None and frac > 0.6
+
+
 def test_tracks_seen_across_the_gap_give_the_transform_between_the_groups():
     rng = np.random.default_rng(3)
     K = intrinsics_matrix(250.0, 250.0, W / 2, H / 2)
