@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from trackingworld.config import OptimConfig
@@ -362,12 +363,93 @@ def test_a_group_of_two_objects_one_motion_explains_is_cut_to_its_largest_piece(
     assert errs[0.0] > 0.2 and errs[0.1] < 0.01, errs
 
 
+def _handed_over():
+    """Two boxes at 3 m, 0.24 m apart (the pieces rule's cubes touch), moving together: the first is seen in frames
+    0-9, the second in 7-15, and after frame 9 the first goes on and the second turns away. One rigid motion explains
+    every track where it is seen, and in the frames 7-9 both are seen no track is seen on both sides. Returns uv,
+    vis, true world points [N,T,3], poses, K, query frames, the first box's tracks [N] bool."""
+    rng = np.random.default_rng(5)
+    K, poses = _camera()
+    n_a, n_b = 150, 120
+    P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
+    P[:n_a, 0] -= 0.27
+    P[n_a:, 0] += 0.27
+    t = np.arange(T, dtype=np.float64)
+    X = np.repeat(P[:, None], T, 1) + (np.minimum(t, 9)[:, None] * np.array([0.03, 0.0, 0.0]))[None]
+    X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
+    X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
+    uv, z = project(transform(invert_pose(poses)[None], X), K)
+    vis = np.ones((n_a + n_b, T), bool)
+    vis[:n_a, 10:] = False
+    vis[n_a:, :7] = False
+    qf = np.r_[rng.integers(7, 10, n_a), rng.integers(7, T, n_b)]  # the first queried where both are seen
+    return uv, vis, X, z, poses, K, qf, np.r_[np.ones(n_a, bool), np.zeros(n_b, bool)]
+
+
+def test_a_group_of_two_objects_handed_over_is_cut_to_the_larger():
+    """Without the cut the first box follows the second's turn in the frames it is hidden in; with it each box
+    has a group of its own, and the first keeps its given positions there. The pieces rule leaves the group whole
+    (its cubes touch)."""
+    uv, vis, X, z, poses, K, qf, first = _handed_over()
+    errs = {}
+    for relay in (0.0, 0.05):
+        s = RigidSettings(min_tracks=100, relay_gap=relay, ring_seeds=0, bridge=None)
+        out, groups, _, info = rigid_movers(uv, vis, z, X.copy(), poses, K, qf, OptimConfig(), s)
+        a = np.bincount(groups[first][groups[first] >= 0]).argmax()  # the first box's group
+        assert ((groups[~first] == a).mean() > 0.5) == (relay == 0), (relay, info)
+        errs[relay] = np.median(np.linalg.norm(out[first][:, 10:] - X[first][:, 10:], axis=-1))
+    assert errs[0.0] > 0.2 and errs[0.05] < 0.01, errs
+
+
+def test_one_object_whose_tracks_were_picked_up_again_is_not_cut():
+    """The later tracks on the same surface as the earlier ones: one object, however few tracks span the two."""
+    from trackingworld.optim.rigid import handed_over
+
+    uv, vis, X, z, poses, K, _, first = _scene_relay_points()
+    s = RigidSettings(min_tracks=100)
+    R = torch.as_tensor(np.repeat(np.eye(3)[None], T, 0))
+    t = torch.as_tensor(np.repeat(np.array([[0.0, 0.0, 3.0]]), T, 0))
+    motion = (np.arange(T), R, t)
+    early = handed_over(uv, vis, X, motion, K, s, 3.0)
+    np.testing.assert_array_equal(early, first)  # 0.5 m apart: two objects, the earlier set marked
+    apart = X.copy()
+    apart[~first] -= np.array([0.5, 0.0, 0.0])  # the later points on the earlier ones' surface
+    uv2 = _project_static(apart, K)
+    assert handed_over(uv2, vis, apart, motion, K, s, 3.0) is None
+    vis2 = vis.copy()
+    vis2[:40] = True  # 40 of the earlier tracks seen throughout: they span the two sets
+    assert handed_over(uv, vis2, X, motion, K, s, 3.0) is None
+
+
+def _project_static(P, K):
+    """uv [n,T,2] of object points P [n,3] 3 m ahead of a still camera (the object frame is the camera's)."""
+    c = P + np.array([0.0, 0.0, 3.0])
+    uv = np.stack([K[0, 0] * c[:, 0] / c[:, 2] + K[0, 2], K[1, 1] * c[:, 1] / c[:, 2] + K[1, 2]], -1)
+    return np.repeat(uv[:, None], T, 1)
+
+
+def _scene_relay_points():
+    """Points of an object frame 3 m ahead of a still camera: 150 seen in frames 0-7, 120 in 8-15, the later ones
+    0.5 m to the right. Returns uv, vis, points [n,3], None, None, K, None, the earlier tracks [n] bool."""
+    rng = np.random.default_rng(6)
+    K, _ = _camera()
+    P = rng.uniform(-0.15, 0.15, (270, 3))
+    first = np.arange(270) < 150
+    P[~first, 0] += 0.5
+    vis = np.zeros((270, T), bool)
+    vis[first, :8] = True
+    vis[~first, 8:] = True
+    return _project_static(P, K), vis, P, None, None, K, None, first
+
+
 def test_a_negative_split_gap_is_refused_in_one_line():
     from trackingworld.errors import InputError
     from trackingworld.pipeline.world import check_optim
 
     with pytest.raises(InputError, match="rigid_split_gap -0.1: a fraction of the depth"):
         check_optim(OptimConfig(rigid_split_gap=-0.1))
+    with pytest.raises(InputError, match="rigid_relay_gap -0.1: a fraction of the depth"):
+        check_optim(OptimConfig(rigid_relay_gap=-0.1))
     with pytest.raises(InputError, match="rigid_key_frames 2: 0 .all frames. or 3 or more"):
         check_optim(OptimConfig(rigid_key_frames=2))
 

@@ -372,6 +372,11 @@ class OptimConfig:
     # only the other was seen in (`hard` 22: objects 2.4 m apart in one group, world 3D accuracy 73.2 -> 75.2; the
     # forty-seven scenes 83.807 -> 83.785, 39 unchanged; optim.rigid, docs/lifting.md item 6f; 0: never)
     rigid_split_gap: float = 0.1
+    # (not in the paper) ... and a group whose tracks fall into an earlier and a later set that hardly a track spans
+    # and whose points do not come within this fraction of their median depth of each other's is two objects handed
+    # over (the first one's tracks lost where the other's begin) and is cut to its larger set (`hard` 22, stop 94;
+    # optim.rigid.handed_over, docs/lifting.md item 6f; 0: never)
+    rigid_relay_gap: float = 0.05
     # (not in the paper) ... and a group's motion solved in more frames than this bundle-adjusted on this many key
     # frames spread over them, every other frame's pose fitted alone to the points it gave: the dense pose system
     # of the fit grows with the square of its frames (optim.rigid, docs/lifting.md item 6b; 0: all frames, as

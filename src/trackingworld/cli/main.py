@@ -498,6 +498,10 @@ def _optim_args(p: argparse.ArgumentParser) -> None:
                    help="(not in the paper) with --rigid-movers: a group whose points fall apart, in the object's "
                         "frame, into pieces more than FRAC x their median depth apart is cut to its largest piece "
                         "(0: never)")
+    g.add_argument("--rigid-relay-gap", type=float, default=d.rigid_relay_gap, metavar="FRAC",
+                   help="(not in the paper) with --rigid-movers: a group whose tracks fall into an earlier and a later "
+                        "set that hardly a track spans, their points nowhere within FRAC x their median depth of "
+                        "each other, is two objects handed over and is cut to its larger set (0: never)")
     g.add_argument("--rigid-key-frames", type=int, default=d.rigid_key_frames, metavar="FRAMES",
                    help="(not in the paper) with --rigid-movers: a group's motion solved in more frames than FRAMES "
                         "is bundle-adjusted on FRAMES key frames spread over them and every other frame's pose "
@@ -573,7 +577,8 @@ def _optim_config(a):
         photo_static_hidden=a.photo_static_hidden, photo_static_patch=a.photo_static_patch,
         photo_static_track_px=a.photo_static_track,
         rigid_movers=a.rigid_movers, rigid_bridge=a.rigid_bridge, rigid_second_pass=a.rigid_second_pass,
-        rigid_split_gap=a.rigid_split_gap, rigid_key_frames=a.rigid_key_frames,
+        rigid_split_gap=a.rigid_split_gap, rigid_relay_gap=a.rigid_relay_gap,
+        rigid_key_frames=a.rigid_key_frames,
         occluded_static_frames=a.occluded_static, occluded_static_frac=a.occluded_static_frac,
         occluded_static_in_view=a.occluded_static_in_view, photo_moving_share=a.photo_moving,
         occluded_static_px=a.occluded_static_px, occluded_static_depth=a.occluded_static_depth,

@@ -111,6 +111,16 @@ class RigidSettings:
     # apart, the others holding split_share of it or more, is cut to its largest piece (0: never)
     split_gap: float = 0.1
     split_share: float = 0.1
+    # a group whose tracks fall into an earlier and a later set, fewer than relay_share of the smaller set's tracks
+    # explained (within max_px80) in 3 or more frames on both sides of some frame, each set of min_tracks or more,
+    # whose points do not meet in the object's frame (fewer than relay_touch of either set's points within
+    # relay_gap x the group's median depth of the other's) is two objects handed over: the tracks of one lost where
+    # the other's begin, the motion following the first before and the second after, each then placed by the
+    # other's motion where hidden. It is cut to its larger set (0: never). The later tracks of one object picked up
+    # where its earlier ones were lost lie on the same surface (docs/lifting.md item 6f)
+    relay_gap: float = 0.05
+    relay_share: float = 0.1
+    relay_touch: float = 0.1
 
 
 def neighbour_pairs(uv: np.ndarray, vis: np.ndarray, z, qf: np.ndarray, s: RigidSettings) -> np.ndarray:
@@ -419,29 +429,41 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             members = grown
             if done:
                 break
-        if s.split_gap > 0 and len(members) >= s.min_tracks:
+        if (s.split_gap > 0 or s.relay_gap > 0) and len(members) >= s.min_tracks:
             members, P, motion = one_piece(members, P, motion)
         return ((members, P, motion) if motion is not None and len(members) >= s.min_tracks else None), near
 
     def one_piece(members, P, motion):
         """The group cut to its largest piece in the object frame (:func:`pieces`) where the others hold
-        ``split_share`` of it or more, its motion fitted to that piece again and the group grown from it again
+        ``split_share`` of it or more, or else to the larger of two objects handed over (:func:`handed_over`),
+        its motion fitted to that piece again and the group grown from it again
         (cut once more, not grown, if it is two pieces again): two objects that one rigid motion explains over the
         frames both are seen in (a spin about an axis between two objects that pass each other the opposite way),
         the group then placing each in the frames where only the other is seen."""
         for again in (True, False):
             if not np.isfinite(P).all():
                 break
-            gap = s.split_gap * float(np.median(z[members, qf[members]]))
-            label = pieces(P, gap)
-            sizes = np.bincount(label)
-            big = int(np.argmax(sizes))
-            if sizes[big] > (1 - s.split_share) * len(members):
+            depth = float(np.median(z[members, qf[members]]))
+            keep = None
+            if s.split_gap > 0:
+                label = pieces(P, s.split_gap * depth)
+                sizes = np.bincount(label)
+                big = int(np.argmax(sizes))
+                if sizes[big] <= (1 - s.split_share) * len(members):
+                    keep = label == big
+                    if log:
+                        log(f"group of {len(members)} tracks cut to its largest piece of {sizes[big]} "
+                            f"({len(sizes)} pieces {s.split_gap * depth:.2f} m apart)")
+            if keep is None and s.relay_gap > 0:
+                early = handed_over(uv[members].astype(np.float64), vis[members], P, motion, K, s, depth)
+                if early is not None:
+                    keep = early if early.sum() >= len(early) / 2 else ~early
+                    if log:
+                        log(f"group of {len(members)} tracks cut to its {'earlier' if keep is early else 'later'} "
+                            f"{keep.sum()}: two objects, one lost where the other's tracks begin")
+            if keep is None:
                 break
-            if log:
-                log(f"group of {len(members)} tracks cut to its largest piece of {sizes[big]} "
-                    f"({len(sizes)} pieces {gap:.2f} m apart)")
-            piece = members[label == big]
+            piece = members[keep]
             # drawn from a generator of its own: the search's stream, which every later group's fits draw from, stays
             # the one it would be without the cut
             motion = refit(piece, draws=np.random.default_rng(s.rng_seed + 1))
@@ -513,6 +535,48 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
         sub[keep] = pos[keep]
         out[o.members] = sub
     return out, groups, motions, info
+
+
+def handed_over(uv: np.ndarray, vis: np.ndarray, P: np.ndarray, motion, K: np.ndarray, s: RigidSettings,
+                depth: float) -> np.ndarray | None:
+    """``[n] bool``: the earlier of two sets of a group's tracks that are two objects handed over from one to the
+    other, or None (``RigidSettings.relay_gap``). ``uv [n,T,2]`` px, ``vis [n,T]`` the group's tracks, ``P [n,3]``
+    their points in the object frame (metres) on the rigid ``motion`` (:func:`fit_motion`), ``depth`` the group's
+    median depth (metres). A track is explained in a solved frame where its point projects within ``max_px80`` of
+    it; the frame after which fewest tracks are explained in 3 or more frames on both sides, relative to the
+    smaller side (each of ``min_tracks`` or more), parts them, by the middle of each track's explained frames."""
+    order, R, t = motion
+    order = np.asarray(order)
+    cam = np.einsum("fij,nj->nfi", R.detach().cpu().numpy().astype(np.float64), P) + \
+        t.detach().cpu().numpy().astype(np.float64)[None]  # [n,F,3] in the solved frames
+    z = cam[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = np.stack([K[0, 0] * cam[..., 0] / z + K[0, 2], K[1, 1] * cam[..., 1] / z + K[1, 2]], -1)
+        err = np.linalg.norm(px - uv[:, order], axis=-1)
+    T = vis.shape[1]
+    ok = np.zeros(vis.shape, bool)
+    ok[:, order] = vis[:, order] & (z > 1e-6) & (err <= s.max_px80)
+    upto = np.cumsum(ok, 1)[:, :-1]  # [n,T-1] explained frames up to and including each frame
+    before, after = upto >= 3, (ok.sum(1, keepdims=True) - upto) >= 3
+    side = np.minimum(before.sum(0), after.sum(0))
+    valid = side >= s.min_tracks
+    if not valid.any():
+        return None
+    share = (before & after).sum(0) / np.maximum(side, 1)
+    b = int(np.flatnonzero(valid)[np.argmin(share[valid])])
+    if share[b] >= s.relay_share:
+        return None
+    frames = np.arange(T)
+    mid = np.array([np.median(frames[o]) if o.any() else np.inf for o in ok])
+    early = mid <= b
+    if early.sum() < s.min_tracks or (~early).sum() < s.min_tracks:
+        return None
+    gap = s.relay_gap * depth
+    for a, c in ((early, ~early), (~early, early)):
+        d, _ = cKDTree(P[a]).query(P[c], k=1, distance_upper_bound=gap)
+        if np.isfinite(d).mean() >= s.relay_touch:
+            return None  # they meet: one object whose later tracks were picked up where the earlier were lost
+    return early
 
 
 def pieces(P: np.ndarray, gap: float) -> np.ndarray:

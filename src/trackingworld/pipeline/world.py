@@ -398,6 +398,8 @@ def check_optim(o: OptimConfig) -> None:
         raise InputError(f"mask_core_px {o.mask_core_px}: the depth inside the masks (px) is 0 (off) or more")
     if not o.rigid_split_gap >= 0:
         raise InputError(f"rigid_split_gap {o.rigid_split_gap}: a fraction of the depth, 0 (never) or more")
+    if not o.rigid_relay_gap >= 0:
+        raise InputError(f"rigid_relay_gap {o.rigid_relay_gap}: a fraction of the depth, 0 (never) or more")
     if o.rigid_key_frames < 0 or o.rigid_key_frames in (1, 2):
         raise InputError(f"rigid_key_frames {o.rigid_key_frames}: 0 (all frames) or 3 or more")
     if o.rigid_second_pass < 0:
