@@ -405,20 +405,21 @@ def test_one_object_whose_tracks_were_picked_up_again_is_not_cut():
     """The later tracks on the same surface as the earlier ones: one object, however few tracks span the two."""
     from trackingworld.optim.rigid import handed_over
 
-    uv, vis, X, z, poses, K, _, first = _scene_relay_points()
+    uv, vis, X, K, first = _relay_points()
     s = RigidSettings(min_tracks=100)
     R = torch.as_tensor(np.repeat(np.eye(3)[None], T, 0))
     t = torch.as_tensor(np.repeat(np.array([[0.0, 0.0, 3.0]]), T, 0))
     motion = (np.arange(T), R, t)
-    early = handed_over(uv, vis, X, motion, K, s, 3.0)
+    rows = np.arange(len(vis))
+    early = handed_over(uv, vis, rows, X, motion, K, s, 3.0)
     np.testing.assert_array_equal(early, first)  # 0.5 m apart: two objects, the earlier set marked
     apart = X.copy()
     apart[~first] -= np.array([0.5, 0.0, 0.0])  # the later points on the earlier ones' surface
     uv2 = _project_static(apart, K)
-    assert handed_over(uv2, vis, apart, motion, K, s, 3.0) is None
+    assert handed_over(uv2, vis, rows, apart, motion, K, s, 3.0) is None
     vis2 = vis.copy()
     vis2[:40] = True  # 40 of the earlier tracks seen throughout: they span the two sets
-    assert handed_over(uv, vis2, X, motion, K, s, 3.0) is None
+    assert handed_over(uv, vis2, rows, X, motion, K, s, 3.0) is None
 
 
 def _project_static(P, K):
@@ -428,9 +429,9 @@ def _project_static(P, K):
     return np.repeat(uv[:, None], T, 1)
 
 
-def _scene_relay_points():
+def _relay_points():
     """Points of an object frame 3 m ahead of a still camera: 150 seen in frames 0-7, 120 in 8-15, the later ones
-    0.5 m to the right. Returns uv, vis, points [n,3], None, None, K, None, the earlier tracks [n] bool."""
+    0.5 m to the right. Returns uv, vis, the points [n,3], K, the earlier tracks [n] bool."""
     rng = np.random.default_rng(6)
     K, _ = _camera()
     P = rng.uniform(-0.15, 0.15, (270, 3))
@@ -439,7 +440,7 @@ def _scene_relay_points():
     vis = np.zeros((270, T), bool)
     vis[first, :8] = True
     vis[~first, 8:] = True
-    return _project_static(P, K), vis, P, None, None, K, None, first
+    return _project_static(P, K), vis, P, K, first
 
 
 def test_a_negative_split_gap_is_refused_in_one_line():

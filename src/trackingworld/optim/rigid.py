@@ -24,8 +24,10 @@ non-rigid object, of the background, or that jump from one object to another are
 positions. A track in a group takes the motion's positions in every frame the motion is solved in, its hidden frames
 too. A group whose points fall apart, in the object's frame, into pieces farther apart than ``split_gap`` times
 their depth is two objects that one motion explained where both were seen (:func:`pieces`): it is cut to its
-largest piece, grown again from that. The groups of one object on either side of a gap no track crosses are then
-joined (:mod:`trackingworld.optim.rigid_bridge`).
+largest piece, grown again from that; a group whose tracks fall into an earlier and a later set that hardly a
+track spans, their points apart in the object's frame, is two objects handed over where one was lost as the other
+came into view (:func:`handed_over`), and is cut to its larger set likewise. The groups of one object on either side
+of a gap no track crosses are then joined (:mod:`trackingworld.optim.rigid_bridge`).
 
 Conventions: ``uv [N,T,2]`` px, ``vis [N,T]``, depths ``[N,T]`` metres, world positions ``[N,T,3]`` metres,
 poses camera-to-world ``[T,4,4]`` (OpenCV axes).
@@ -455,7 +457,7 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
                         log(f"group of {len(members)} tracks cut to its largest piece of {sizes[big]} "
                             f"({len(sizes)} pieces {s.split_gap * depth:.2f} m apart)")
             if keep is None and s.relay_gap > 0:
-                early = handed_over(uv[members].astype(np.float64), vis[members], P, motion, K, s, depth)
+                early = handed_over(uv, vis, members, P, motion, K, s, depth)
                 if early is not None:
                     keep = early if early.sum() >= len(early) / 2 else ~early
                     if log:
@@ -537,25 +539,29 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
     return out, groups, motions, info
 
 
-def handed_over(uv: np.ndarray, vis: np.ndarray, P: np.ndarray, motion, K: np.ndarray, s: RigidSettings,
+def handed_over(uv, vis: np.ndarray, rows: np.ndarray, P: np.ndarray, motion, K: np.ndarray, s: RigidSettings,
                 depth: float) -> np.ndarray | None:
     """``[n] bool``: the earlier of two sets of a group's tracks that are two objects handed over from one to the
-    other, or None (``RigidSettings.relay_gap``). ``uv [n,T,2]`` px, ``vis [n,T]`` the group's tracks, ``P [n,3]``
-    their points in the object frame (metres) on the rigid ``motion`` (:func:`fit_motion`), ``depth`` the group's
-    median depth (metres). A track is explained in a solved frame where its point projects within ``max_px80`` of
-    it; the frame after which fewest tracks are explained in 3 or more frames on both sides, relative to the
-    smaller side (each of ``min_tracks`` or more), parts them, by the middle of each track's explained frames."""
+    other, or None (``RigidSettings.relay_gap``). ``uv [N,T,2]`` px (an array or :class:`Rows`), ``vis [N,T]``;
+    ``rows [n]`` the group's tracks, ``P [n,3]`` their points in the object frame (metres) on the rigid ``motion``
+    (:func:`fit_motion`), ``depth`` the group's median depth (metres). A track is explained in a solved frame where
+    its point projects within ``max_px80`` of it; the frame after which fewest tracks are explained in 3 or more
+    frames on both sides, relative to the smaller side (each of ``min_tracks`` or more), parts them, by the middle
+    of each track's explained frames. Read frame by frame: a few bytes a track at a time."""
     order, R, t = motion
-    order = np.asarray(order)
-    cam = np.einsum("fij,nj->nfi", R.detach().cpu().numpy().astype(np.float64), P) + \
-        t.detach().cpu().numpy().astype(np.float64)[None]  # [n,F,3] in the solved frames
-    z = cam[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        px = np.stack([K[0, 0] * cam[..., 0] / z + K[0, 2], K[1, 1] * cam[..., 1] / z + K[1, 2]], -1)
-        err = np.linalg.norm(px - uv[:, order], axis=-1)
+    R = R.detach().cpu().numpy().astype(np.float64)
+    t = t.detach().cpu().numpy().astype(np.float64)
     T = vis.shape[1]
-    ok = np.zeros(vis.shape, bool)
-    ok[:, order] = vis[:, order] & (z > 1e-6) & (err <= s.max_px80)
+    ok = np.zeros((len(rows), T), bool)
+    for k, f in enumerate(np.asarray(order)):
+        sel = np.flatnonzero(vis[rows, f])
+        if not len(sel):
+            continue
+        cam = P[sel] @ R[k].T + t[k]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px = np.stack([K[0, 0] * cam[:, 0] / z + K[0, 2], K[1, 1] * cam[:, 1] / z + K[1, 2]], -1)
+            ok[sel, f] = (z > 1e-6) & (np.linalg.norm(px - uv[rows[sel], f], axis=-1) <= s.max_px80)
     upto = np.cumsum(ok, 1)[:, :-1]  # [n,T-1] explained frames up to and including each frame
     before, after = upto >= 3, (ok.sum(1, keepdims=True) - upto) >= 3
     side = np.minimum(before.sum(0), after.sum(0))
@@ -567,8 +573,7 @@ def handed_over(uv: np.ndarray, vis: np.ndarray, P: np.ndarray, motion, K: np.nd
     if share[b] >= s.relay_share:
         return None
     frames = np.arange(T)
-    mid = np.array([np.median(frames[o]) if o.any() else np.inf for o in ok])
-    early = mid <= b
+    early = np.array([np.median(frames[o]) <= b if o.any() else False for o in ok])  # by the middle of its frames
     if early.sum() < s.min_tracks or (~early).sum() < s.min_tracks:
         return None
     gap = s.relay_gap * depth
