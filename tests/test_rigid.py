@@ -326,26 +326,32 @@ def test_pieces_are_the_points_joined_within_the_gap():
     assert len(np.unique(pieces(np.r_[blob, blob[:100] + 0.35], gap=0.2))) == 1  # touching: one piece
 
 
+def _two_boxes(seed: int, half_gap: float):
+    """Two boxes of 150 and 120 points at 3 m, their centres ``2 x half_gap`` apart along x, that move together
+    until frame 9, after which the first goes on and the second turns away. Returns the generator, uv, z, true world
+    points [N,T,3], poses, K, the first box's tracks [N] bool."""
+    rng = np.random.default_rng(seed)
+    K, poses = _camera()
+    n_a, n_b = 150, 120
+    P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
+    P[:n_a, 0] -= half_gap
+    P[n_a:, 0] += half_gap
+    t = np.arange(T, dtype=np.float64)
+    X = np.repeat(P[:, None], T, 1) + (np.minimum(t, 9)[:, None] * np.array([0.03, 0.0, 0.0]))[None]
+    X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
+    X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
+    uv, z = project(transform(invert_pose(poses)[None], X), K)
+    return rng, uv, z, X, poses, K, np.arange(n_a + n_b) < n_a
+
+
 def _two_objects():
     """Two boxes 1 m apart at 3 m that move together for 10 frames, after which the first (seen in frames 0-9 only)
     goes on and the second (seen in all 16) turns away: one rigid motion explains every track where it is seen.
     Returns uv, vis, true world points [N,T,3], poses, K, query frames, the first box's tracks [N] bool."""
-    rng = np.random.default_rng(3)
-    K, poses = _camera()
-    n_a, n_b = 150, 120
-    P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
-    P[:n_a, 0] -= 0.5
-    P[n_a:, 0] += 0.5
-    t = np.arange(T, dtype=np.float64)
-    together = np.minimum(t, 9)[:, None] * np.array([0.03, 0.0, 0.0])
-    X = np.repeat(P[:, None], T, 1) + together[None]
-    X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
-    X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
-    uv, z = project(transform(invert_pose(poses)[None], X), K)
-    vis = np.ones((n_a + n_b, T), bool)
-    vis[:n_a, 10:] = False
-    qf = rng.integers(0, 10, n_a + n_b)  # both queried where both are seen
-    first = np.r_[np.ones(n_a, bool), np.zeros(n_b, bool)]
+    rng, uv, z, X, poses, K, first = _two_boxes(3, 0.5)
+    vis = np.ones(first.shape + (T,), bool)
+    vis[first, 10:] = False
+    qf = rng.integers(0, 10, len(first))  # both queried where both are seen
     return uv, vis, X, z, poses, K, qf, first
 
 
@@ -368,22 +374,13 @@ def _handed_over():
     0-9, the second in 7-15, and after frame 9 the first goes on and the second turns away. One rigid motion explains
     every track where it is seen, and in the frames 7-9 both are seen no track is seen on both sides. Returns uv,
     vis, true world points [N,T,3], poses, K, query frames, the first box's tracks [N] bool."""
-    rng = np.random.default_rng(5)
-    K, poses = _camera()
-    n_a, n_b = 150, 120
-    P = rng.uniform(-0.15, 0.15, (n_a + n_b, 3))
-    P[:n_a, 0] -= 0.27
-    P[n_a:, 0] += 0.27
-    t = np.arange(T, dtype=np.float64)
-    X = np.repeat(P[:, None], T, 1) + (np.minimum(t, 9)[:, None] * np.array([0.03, 0.0, 0.0]))[None]
-    X[:n_a, 10:] += (t[10:] - 9)[None, :, None] * np.array([0.03, 0.0, 0.0])
-    X[n_a:, 10:] += (t[10:] - 9)[None, :, None] * np.array([-0.05, 0.03, 0.0])
-    uv, z = project(transform(invert_pose(poses)[None], X), K)
-    vis = np.ones((n_a + n_b, T), bool)
-    vis[:n_a, 10:] = False
-    vis[n_a:, :7] = False
-    qf = np.r_[rng.integers(7, 10, n_a), rng.integers(7, T, n_b)]  # the first queried where both are seen
-    return uv, vis, X, z, poses, K, qf, np.r_[np.ones(n_a, bool), np.zeros(n_b, bool)]
+    rng, uv, z, X, poses, K, first = _two_boxes(5, 0.27)
+    vis = np.ones(first.shape + (T,), bool)
+    vis[first, 10:] = False
+    vis[~first, :7] = False
+    # the first box queried in frames 7-9, where both are seen
+    qf = np.where(first, rng.integers(7, 10, len(first)), rng.integers(7, T, len(first)))
+    return uv, vis, X, z, poses, K, qf, first
 
 
 def test_a_group_of_two_objects_handed_over_is_cut_to_the_larger():
