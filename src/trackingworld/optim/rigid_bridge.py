@@ -50,8 +50,8 @@ class BridgeSettings:
     # ... and each such point's camera depth within this |log ratio| of the track's it lands on (its point on the
     # other group's motion; 0: not checked). A large dense group covers the image where a smaller one was lost
     # whatever its depth: on `default` 56 an object lost in frame 19 was joined to another one 2.4x as far that
-    # came into view in frame 20 (91% of the moved points on its tracks, none within 0.1 in depth); the groups of
-    # one object joined on twelve scenes had 92-99% of those points within 0.1 (docs/lifting.md item 6c)
+    # came into view in frame 20 (91% of the moved points on its tracks, none within 0.1 in depth); the eight joins
+    # of one object's groups on seven synthetic scenes had 92-99% of those points within 0.1 (docs/lifting.md 6c)
     depth_tol: float = 0.2
     # with at least this many tracks of one group seen in the other's frames (the tracker found them again after
     # the gap), the transform between the groups is fitted to those tracks' positions, not to the extensions

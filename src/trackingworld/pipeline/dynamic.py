@@ -104,8 +104,7 @@ def place_rigid(dyn, queries, uv, vis, target, xyz, poses, K, cfg: OptimConfig, 
     and torch runs the step on one thread fewer throughout."""
     note = (lambda m: print(f"[rigid movers] {m}", file=sys.stderr, flush=True)) if cfg.verbose else None
     settings = RigidSettings(ring_seeds=cfg.rigid_second_pass, split_gap=cfg.rigid_split_gap,
-                             relay_gap=cfg.rigid_relay_gap,
-                             max_fit_frames=cfg.rigid_key_frames)
+                             relay_gap=cfg.rigid_relay_gap, max_fit_frames=cfg.rigid_key_frames)
     if not cfg.rigid_bridge:
         settings.bridge = None
     pool = ThreadPoolExecutor(1, thread_name_prefix="tw-beside") if carry is not None or beside is not None else None
