@@ -82,6 +82,7 @@ ROWS = {
     "rigid groups not joined across gaps (--no-rigid-bridge)": ("trackingworld", {"rigid_bridge": False}, ""),
     "one search for rigid groups (--rigid-second-pass 0)": ("trackingworld", {"rigid_second_pass": 0}, ""),
     "rigid groups never cut in pieces (--rigid-split-gap 0)": ("trackingworld", {"rigid_split_gap": 0.0}, ""),
+    "rigid groups never cut at a hand-off (--rigid-relay-gap 0)": ("trackingworld", {"rigid_relay_gap": 0.0}, ""),
     f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),
