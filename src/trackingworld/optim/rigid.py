@@ -44,7 +44,15 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from trackingworld.geometry import camera_depths, depth_along, invert_pose, pose_from_rt, rigid_transform, transform
+from trackingworld.geometry import (
+    camera_depths,
+    depth_along,
+    invert_pose,
+    pose_from_rt,
+    project,
+    rigid_transform,
+    transform,
+)
 from trackingworld.optim import lie, point_fit, stage2
 from trackingworld.optim.rigid_bridge import BridgeSettings, RigidObject, bridge
 from trackingworld.optim.rows import Rows
@@ -459,9 +467,10 @@ def rigid_movers(uv: np.ndarray, vis: np.ndarray, target: np.ndarray, xyz: np.nd
             if keep is None and s.relay_gap > 0:
                 early = handed_over(uv, vis, members, P, motion, K, s, depth)
                 if early is not None:
-                    keep = early if early.sum() >= len(early) / 2 else ~early
+                    earlier = early.sum() >= len(early) / 2  # the larger set kept
+                    keep = early if earlier else ~early
                     if log:
-                        log(f"group of {len(members)} tracks cut to its {'earlier' if keep is early else 'later'} "
+                        log(f"group of {len(members)} tracks cut to its {'earlier' if earlier else 'later'} "
                             f"{keep.sum()}: two objects, one lost where the other's tracks begin")
             if keep is None:
                 break
@@ -557,11 +566,8 @@ def handed_over(uv, vis: np.ndarray, rows: np.ndarray, P: np.ndarray, motion, K:
         sel = np.flatnonzero(vis[rows, f])
         if not len(sel):
             continue
-        cam = P[sel] @ R[k].T + t[k]
-        z = cam[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            px = np.stack([K[0, 0] * cam[:, 0] / z + K[0, 2], K[1, 1] * cam[:, 1] / z + K[1, 2]], -1)
-            ok[sel, f] = (z > 1e-6) & (np.linalg.norm(px - uv[rows[sel], f], axis=-1) <= s.max_px80)
+        px, z = project(P[sel] @ R[k].T + t[k], K)
+        ok[sel, f] = (z > 1e-6) & (np.linalg.norm(px - uv[rows[sel], f], axis=-1) <= s.max_px80)
     upto = np.cumsum(ok, 1)[:, :-1]  # [n,T-1] explained frames up to and including each frame
     before, after = upto >= 3, (ok.sum(1, keepdims=True) - upto) >= 3
     side = np.minimum(before.sum(0), after.sum(0))
