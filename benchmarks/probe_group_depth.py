@@ -68,8 +68,12 @@ def reprojection(res, gt: dict, members: np.ndarray, motion: np.ndarray | None, 
         if X0 is not None:
             p, _ = project(transform(invert_pose(gt["poses_c2w"][t]), transform(motion[t], X0[v])), gt["K"])
             truth.append(np.linalg.norm(p - res.tracks_2d[members[v], t], axis=1))
-    med = lambda e: float(np.median(np.concatenate(e))) if e else float("nan")  # noqa: E731
-    return med(fit), (med(truth) if X0 is not None else None)
+    return _median(fit), (_median(truth) if X0 is not None else None)
+
+
+def _median(errors: list) -> float:
+    """The median of the per-frame error arrays ``errors`` (px), NaN where there are none."""
+    return float(np.median(np.concatenate(errors))) if errors else float("nan")
 
 
 def main(argv=None) -> int:
