@@ -124,3 +124,11 @@ def query_pixels(res: Result):
     """(x [N], y [N]) int: each result track's pixel at its query frame, to read ground-truth maps there."""
     _, H, W = res.depth.shape
     return nearest_pixel(res.tracks_2d[np.arange(res.num_tracks), res.query_frame], W, H)
+
+
+def query_objects(gt: dict) -> np.ndarray:
+    """[Nq] int: the ground-truth instance under each ground-truth query's pixel at its query frame (the object it
+    starts on; 0 the static room)."""
+    H, W = gt["instance"].shape[1:]
+    x, y = nearest_pixel(gt["query_uv"], W, H)
+    return gt["instance"][gt["query_frame"], y, x]

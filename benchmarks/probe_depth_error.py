@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, scored_queries, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_objects, scored_queries, write_results  # noqa: I001 (a sibling script module)
 from probe_hidden import accuracy
 from trackingworld.geometry import invert_pose, nearest_pixel, transform
 
@@ -73,8 +73,7 @@ def main(argv=None) -> int:
 
     T, H, W = gt["depth"].shape
     prior = np.load(scene / "input" / "depth.npy")
-    qx, qy = nearest_pixel(gt["query_uv"], W, H)
-    obj = gt["instance"][qf, qy, qx]
+    obj = query_objects(gt)
     w2c = invert_pose(poses)
     z_pred = transform(w2c[None], pred)[..., 2]  # [n,T] camera depths in the truth's cameras
     z_true = transform(w2c[None], true)[..., 2]

@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from _common import probe_inputs, query_pixels, write_results  # noqa: I001 (a sibling script module)
+from _common import probe_inputs, query_objects, query_pixels, write_results  # noqa: I001 (a sibling script module)
 from trackingworld.eval.trajectory import sim3_from_poses
 from trackingworld.geometry import (
     camera_depths,
@@ -36,23 +36,23 @@ MIN_OBS = 20  # seen observations of a group on its object a frame needs to get 
 MIN_QUERIES = 3  # ground-truth query tracks on an object its true motion is fitted to
 
 
-def true_motion(gt: dict, obj: int, H: int, W: int) -> np.ndarray | None:
+def true_motion(gt: dict, obj: int) -> np.ndarray | None:
     """``[T,4,4]`` world-to-world motion of ground-truth object ``obj`` from frame 0 (the rigid fit of its
     ground-truth query tracks, which the synthetic scenes give in every frame), None with too few of them."""
-    x, y = nearest_pixel(gt["query_uv"], W, H)
-    on = gt["instance"][gt["query_frame"], y, x] == obj
+    on = query_objects(gt) == obj
     if on.sum() < MIN_QUERIES:
         return None
     X = gt["tracks_xyz"][on]
     return np.stack([rigid_transform(X[:, 0], X[:, t]) for t in range(X.shape[1])])
 
 
-def reprojection(res, gt: dict, members: np.ndarray, motion: np.ndarray | None, H: int, W: int):
+def reprojection(res, gt: dict, members: np.ndarray, motion: np.ndarray | None):
     """(median px of the fitted positions, median px of the truth; None without a true motion) over the seen
     observations of ``members`` (tracks on the group's object)."""
     K, w2c = res.intrinsics, invert_pose(res.poses_c2w)
     q = res.query_frame[members]
     uvq = res.tracks_2d[members, q]
+    _, H, W = gt["depth"].shape
     x, y = nearest_pixel(uvq, W, H)
     X0 = None  # each track's point on the true object at frame 0
     if motion is not None:
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
                 continue
             z = s * camera_depths(res.tracks_3d[v[on], t][:, None], res.poses_c2w[t:t + 1])[:, 0]
             ratios.append((int(t), float(np.median(z / gt["depth"][t, yt[on], xt[on]]))))
-        fit_px, truth_px = reprojection(res, gt, mine, true_motion(gt, obj, H, W), H, W)
+        fit_px, truth_px = reprojection(res, gt, mine, true_motion(gt, obj))
         r = np.array([v for _, v in ratios])
         row = {"group": g, "tracks": int(len(members)), "object": obj, "share": float(counts.max() / len(members)),
                "frames": [int(solved.min()), int(solved.max())] if len(solved) else None,

@@ -114,27 +114,25 @@ def test_the_group_depth_probe_recovers_a_mover_and_reprojects_its_truth(tiny_sc
     import numpy as np
 
     from trackingworld.eval.evaluate import load_gt
-    from trackingworld.geometry import nearest_pixel, transform
+    from trackingworld.geometry import transform
 
     probe = importlib.import_module("probe_group_depth")
     gt = load_gt(tiny_scene, 10)
-    H, W = gt["depth"].shape[1:]
-    x, y = nearest_pixel(gt["query_uv"], W, H)
-    start = gt["instance"][gt["query_frame"], y, x]
+    start = importlib.import_module("_common").query_objects(gt)
     obj = int(np.bincount(start[gt["tracks_dynamic"]]).argmax())  # the mover with the most queries
     on = np.flatnonzero(start == obj)
-    motion = probe.true_motion(gt, obj, H, W)
+    motion = probe.true_motion(gt, obj)
     X = gt["tracks_xyz"][on]
     for t in (3, 9):  # the object's queries follow its motion from frame 0
         assert np.abs(transform(motion[t], X[:, 0]) - X[:, t]).max() < 1e-4
     assert np.abs(transform(motion[9], X[:, 0]) - X[:, 0]).max() > 0.05  # and it moves
-    assert probe.true_motion(gt, -5, H, W) is None
+    assert probe.true_motion(gt, -5) is None
     # a result whose tracks are the ground truth's: both the fitted positions and the truth reproject onto them
     res = SimpleNamespace(intrinsics=gt["K"], poses_c2w=gt["poses_c2w"], query_frame=gt["query_frame"][on],
                           tracks_2d=gt["tracks_uv"][on], tracks_3d=X, visible=gt["tracks_vis"][on].astype(bool))
-    fit_px, truth_px = probe.reprojection(res, gt, np.arange(len(on)), motion, H, W)
+    fit_px, truth_px = probe.reprojection(res, gt, np.arange(len(on)), motion)
     assert fit_px < 0.05 and truth_px < 0.3  # the truth reads the depth at the query's nearest pixel
     res.tracks_2d = res.tracks_2d + np.arange(10)[None, :, None] * 0.5  # 2D tracks drifting 0.5 px a frame
-    fit_px2, truth_px2 = probe.reprojection(res, gt, np.arange(len(on)), motion, H, W)
+    fit_px2, truth_px2 = probe.reprojection(res, gt, np.arange(len(on)), motion)
     assert fit_px2 > 1.0 and truth_px2 > 1.0
-    assert probe.reprojection(res, gt, np.arange(len(on)), None, H, W)[1] is None
+    assert probe.reprojection(res, gt, np.arange(len(on)), None)[1] is None
