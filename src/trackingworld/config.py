@@ -72,10 +72,10 @@ class Track2DConfig:
     flow_skip_stride: int = 4  # flows this many frames apart bound the drift of chained one-frame steps; 0: off
     flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
     # each pairwise flow through a colour-guided weighted median of this radius (px; 0: off): motion boundaries
-    # back on the colour edges (tracking2d.flow_tracker.weighted_median); on twenty scenes static kept 94.40 ->
-    # 95.21 but world accuracy 81.54 -> 81.34, at 1.6-1.8x the tracking time, so off by default
-    # (benchmarks/results/scenes_median.md against scenes_depth_movers.md; docs/tracking2d.md, stop 44)
-    flow_median: int = 0
+    # back on the colour edges (tracking2d.flow_tracker.weighted_median). Not in the paper. On the 96 synthetic
+    # scenes world accuracy 83.12 -> 83.36, static kept 96.37 -> 96.71, at 1.54x the tracking time at 854x480
+    # (benchmarks/results/scenes_stop95_median*.md against scenes_stop94.md; docs/tracking2d.md, stops 95-96)
+    flow_median: int = 5
     # a point found again after a gap must look like its query frame's 5x5 patch within this (grey levels, mean
     # absolute difference, patch means removed; tracking2d.flow_tracker). Off (0): static kept and world accuracy
     # up on eight scenes, but missed movers' recall down (docs/tracking2d.md, stop 48)

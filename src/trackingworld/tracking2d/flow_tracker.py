@@ -29,9 +29,10 @@ Chained flow also lets a point slide slowly off its surface point, which no sing
 whose colour has moved more than ``max_query_colour_diff`` from its colour in the query frame is lost from
 there on; in dense tracking the pixels it covered become uncovered and get a fresh track from that frame.
 
-Optionally (``median_radius``, off by default) every flow goes through a colour-guided weighted median where it
-differs from the median by more than ``median_gate_px``, which puts motion boundaries back on colour edges: more
-static tracks stay on their point beside movers, at 1.6-1.8x the tracking time (docs/tracking2d.md)."""
+Every flow goes through a colour-guided weighted median where it differs from the median by more than
+``median_gate_px`` (``median_radius``; 0: off), which puts motion boundaries back on colour edges: more static
+tracks stay on their point beside movers and the movers' tracks drift less, at 1.5x the tracking time
+(docs/tracking2d.md)."""
 
 from __future__ import annotations
 
@@ -93,10 +94,9 @@ class FlowTrackerConfig:
     drag_window_px: int = 6  # ... tested only where a flow component varies by drag_abs_px within this many px
     # every pairwise flow goes through OpenCV's weighted median filter guided by the source frame's colours (radius
     # px; 0: off): DIS smooths a mover's flow into the background beside it, the median puts the motion boundary
-    # back on the colour edge (Sun, Roth & Black, "Secrets of optical flow", 2010). Needs opencv-contrib. Off by
-    # default: on twenty scenes it keeps more static tracks static but costs world accuracy and 1.8x the tracking
-    # time (docs/tracking2d.md)
-    median_radius: int = 0
+    # back on the colour edge (Sun, Roth & Black, "Secrets of optical flow", 2010). Needs opencv-contrib. On the
+    # 96 synthetic scenes world accuracy and static kept up, at 1.5x the tracking time (docs/tracking2d.md)
+    median_radius: int = 5
     median_sigma: float = 10.0  # ... its colour weights' width (grey levels)
     median_gate_px: float = 0.5  # ... taken only where it differs from DIS's flow by more than this (0: everywhere)
     verbose: bool = False
