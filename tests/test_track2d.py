@@ -446,6 +446,23 @@ def test_the_weighted_median_puts_the_motion_boundary_back_on_the_colour_edge():
         pairwise_flows(gray, median=(5, 10.0, 0.5))
 
 
+def test_the_medians_on_a_thread_beside_the_flows_give_the_flows_of_one_thread():
+    from trackingworld.tracking2d.flow_tracker import pairwise_flows
+
+    frames = np.concatenate([_moving_square(1)[0]] * 3)  # the square back and forth: five pairs
+    gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)  # the medians after each pair's flows, in this thread
+        one = pairwise_flows(gray, guide=frames, median=(5, 10.0, 0.5))
+        cv2.setNumThreads(2)  # on a thread of their own beside the next pairs' flows
+        two = pairwise_flows(gray, guide=frames, median=(5, 10.0, 0.5))
+    finally:
+        cv2.setNumThreads(threads)
+    assert len(one[0]) == 5 and not np.array_equal(one[0], pairwise_flows(gray)[0])
+    assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
+
+
 def test_the_weighted_median_says_what_to_install_without_opencv_contrib(monkeypatch, tiny_scene, tmp_path, capsys):
     from trackingworld.cli.main import main
     from trackingworld.errors import InputError

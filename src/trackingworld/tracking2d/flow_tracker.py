@@ -36,6 +36,7 @@ tracks stay on their point beside movers and the movers' tracks drift less, at 1
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -119,6 +120,13 @@ def _dis(preset: str, patch: tuple[int, int]):
     return dis
 
 
+def _need_ximgproc() -> None:
+    if not hasattr(cv2, "ximgproc"):
+        raise InputError("the flow's weighted median needs OpenCV's contrib modules (cv2.ximgproc): pip install "
+                         "opencv-contrib-python-headless in place of opencv-python-headless, or pass "
+                         "--flow-median 0")
+
+
 def weighted_median(flow: np.ndarray, guide: np.ndarray, radius: int, sigma: float, gate: float = 0.0) -> np.ndarray:
     """``flow [H,W,2]`` through OpenCV's weighted median filter (``cv2.ximgproc``, opencv-contrib) of half-side
     ``radius`` px, each neighbour weighted by a Gaussian of width ``sigma`` (grey levels) in its colour difference
@@ -128,10 +136,7 @@ def weighted_median(flow: np.ndarray, guide: np.ndarray, radius: int, sigma: flo
 
     The filter clusters the guide's colours from a random start (OpenCV's RNG): seeded here, so that the same
     frames give the same flow (unseeded, two calls differ by up to 6 px on a tenth of the pixels)."""
-    if not hasattr(cv2, "ximgproc"):
-        raise InputError("the flow's weighted median needs OpenCV's contrib modules (cv2.ximgproc): pip install "
-                           "opencv-contrib-python-headless in place of opencv-python-headless, or pass "
-                           "--flow-median 0")
+    _need_ximgproc()
     chans = []
     for c in range(2):
         cv2.setRNGSeed(0)
@@ -149,23 +154,55 @@ def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stri
     [(T-1) // s,H,W,2], of the grey frames ``gray`` (T x [H,W] uint8), s = ``stride`` (1: consecutive frames);
     ``patch``: the fine preset's DIS patch side and stride (px); ``median``: radius (px, 0: off), colour width and
     gate of the :func:`weighted_median` each flow goes through, guided by its source frame in ``guide`` (T x
-    [H,W,3] uint8)."""
+    [H,W,3] uint8).
+
+    With more than one OpenCV thread (``cv2.getNumThreads``; ``--threads 1`` makes it one) the medians run on one
+    thread of their own beside the flows of the next pairs: the filter runs on one core, and DIS gains little from
+    a second, so the two overlap (``docs/speed.md``, stop 96). One thread, not more: two filters at once corrupt
+    each other's memory (OpenCV 5.0). The same flows either way: each filter seeds its own thread's RNG."""
     radius, sigma, gate = median
     if radius > 0 and guide is None:
         raise ValueError("the flow's weighted median needs the colour frames (guide)")
+    if radius > 0:
+        _need_ximgproc()
     dis = _dis(preset, patch)
     n = max((len(gray) - 1) // stride, 0)
     fwd = np.zeros((n,) + gray[0].shape + (2,), np.float32)
     bwd = np.zeros_like(fwd)
     bar = Progress("track2d: optical flow pair" + (f" {stride} frames apart" if stride > 1 else ""), n, verbose)
-    for j in range(n):
-        a, b = j * stride, (j + 1) * stride
-        fwd[j] = dis.calc(gray[a], gray[b], None)
-        bwd[j] = dis.calc(gray[b], gray[a], None)
-        if radius > 0:
-            fwd[j] = weighted_median(fwd[j], guide[a], radius, sigma, gate)
-            bwd[j] = weighted_median(bwd[j], guide[b], radius, sigma, gate)
-        bar.update(j + 1)
+
+    def medians(j: int, a: int, b: int) -> None:
+        fwd[j] = weighted_median(fwd[j], guide[a], radius, sigma, gate)
+        bwd[j] = weighted_median(bwd[j], guide[b], radius, sigma, gate)
+
+    beside = ThreadPoolExecutor(1) if radius > 0 and cv2.getNumThreads() > 1 else None
+    jobs: list = []
+    shown = 0
+
+    def show(k: int) -> None:  # pairs whose flows are final
+        nonlocal shown
+        if k > shown:
+            shown = k
+            bar.update(k)
+
+    try:
+        for j in range(n):
+            a, b = j * stride, (j + 1) * stride
+            fwd[j] = dis.calc(gray[a], gray[b], None)
+            bwd[j] = dis.calc(gray[b], gray[a], None)
+            if beside is not None:
+                jobs.append(beside.submit(medians, j, a, b))
+                show(sum(f.done() for f in jobs))
+            else:
+                if radius > 0:
+                    medians(j, a, b)
+                show(j + 1)
+        for k, f in enumerate(jobs):
+            f.result()
+            show(k + 1)
+    finally:
+        if beside is not None:
+            beside.shutdown(cancel_futures=True)
     return fwd, bwd
 
 
