@@ -73,8 +73,8 @@ class Track2DConfig:
     flow_drag_px: float = 0.5  # a step leaving its like-moving neighbours' by this + 10% is not observed; 0: off
     # each pairwise flow through a colour-guided weighted median of this radius (px; 0: off): motion boundaries
     # back on the colour edges (tracking2d.flow_tracker.weighted_median). Not in the paper. On the 96 synthetic
-    # scenes world accuracy 83.12 -> 83.36, static kept 96.37 -> 96.71, at 1.54x the tracking time at 854x480
-    # (benchmarks/results/scenes_stop95_median*.md against scenes_stop94.md; docs/tracking2d.md, stops 95-96)
+    # scenes world accuracy 83.12 -> 83.36, static kept 96.37 -> 96.71, at 1.4x the tracking time at 854x480 and
+    # 1.8x at 320x240 (benchmarks/results/scenes_stop95_median*.md against scenes_stop94.md; docs/tracking2d.md)
     flow_median: int = 5
     # a point found again after a gap must look like its query frame's 5x5 patch within this (grey levels, mean
     # absolute difference, patch means removed; tracking2d.flow_tracker). Off (0): static kept and world accuracy

@@ -31,8 +31,8 @@ there on; in dense tracking the pixels it covered become uncovered and get a fre
 
 Every flow goes through a colour-guided weighted median where it differs from the median by more than
 ``median_gate_px`` (``median_radius``; 0: off), which puts motion boundaries back on colour edges: more static
-tracks stay on their point beside movers and the movers' tracks drift less, at 1.5x the tracking time
-(docs/tracking2d.md)."""
+tracks stay on their point beside movers and the movers' tracks drift less, at 1.4x the tracking time at 854x480
+and 1.8x at 320x240 (docs/tracking2d.md)."""
 
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ class FlowTrackerConfig:
     # every pairwise flow goes through OpenCV's weighted median filter guided by the source frame's colours (radius
     # px; 0: off): DIS smooths a mover's flow into the background beside it, the median puts the motion boundary
     # back on the colour edge (Sun, Roth & Black, "Secrets of optical flow", 2010). Needs opencv-contrib. On the
-    # 96 synthetic scenes world accuracy and static kept up, at 1.5x the tracking time (docs/tracking2d.md)
+    # 96 synthetic scenes world accuracy and static kept up, at 1.4-1.8x the tracking time (docs/tracking2d.md)
     median_radius: int = 5
     median_sigma: float = 10.0  # ... its colour weights' width (grey levels)
     median_gate_px: float = 0.5  # ... taken only where it differs from DIS's flow by more than this (0: everywhere)
