@@ -34,7 +34,7 @@ PAPER_LIKE = {"static_rebuild": "idw", "dc_target": "prior", "carry_k": 0, "mask
 
 # dense 2D tracks the rows run on (Track2DConfig fields)
 TRACKS = {"": {}, "first": {"first_frame_only": True}, "mean": {"upsampler": "convex-mean"},
-          "nodrag": {"flow_drag_px": 0.0}}
+          "nodrag": {"flow_drag_px": 0.0}, "dis": {"flow_median": 0}}
 
 ROWS = {
     "full (lm solver, default)": ("trackingworld", {}, ""),
@@ -86,6 +86,7 @@ ROWS = {
     f"all {len(PAPER_LIKE)} as the paper": ("trackingworld", PAPER_LIKE, ""),
     "tracks: the upsampler's weighted mean (paper)": ("trackingworld", {}, "mean"),
     "tracks: no drag check in the flow tracker": ("trackingworld", {}, "nodrag"),
+    "tracks: DIS's flow without the median (before stop 96)": ("trackingworld", {}, "dis"),
     f"all {len(PAPER_LIKE)} and the upsampler's mean as the paper": ("trackingworld", PAPER_LIKE, "mean"),
     "baseline (camera-centric)": ("baseline", {}, ""),
 }
