@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from trackingworld import reproducible
 from trackingworld.errors import InputError
 from trackingworld.geometry import nearest_pixel
 from trackingworld.image import blurred_frames, patch_offsets, sample_image, sample_patches
@@ -161,9 +162,9 @@ def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stri
     a second, so the two overlap (``docs/speed.md``, stop 96). One thread, not more: two filters at once corrupt
     each other's memory (OpenCV 5.0). The same flows either way: each filter seeds its own thread's RNG."""
     radius, sigma, gate = median
-    if radius > 0 and guide is None:
-        raise ValueError("the flow's weighted median needs the colour frames (guide)")
     if radius > 0:
+        if guide is None:
+            raise ValueError("the flow's weighted median needs the colour frames (guide)")
         _need_ximgproc()
     dis = _dis(preset, patch)
     n = max((len(gray) - 1) // stride, 0)
@@ -174,6 +175,10 @@ def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stri
     def medians(j: int, a: int, b: int) -> None:
         fwd[j] = weighted_median(fwd[j], guide[a], radius, sigma, gate)
         bwd[j] = weighted_median(bwd[j], guide[b], radius, sigma, gate)
+
+    def medians_beside(j: int, a: int, b: int) -> None:  # OpenCV's IPP switch is per thread: set as the caller's
+        reproducible.follow()  # block wants it, as optim.parallel.each_frame's threads do
+        medians(j, a, b)
 
     beside = ThreadPoolExecutor(1) if radius > 0 and cv2.getNumThreads() > 1 else None
     jobs: list = []
@@ -191,12 +196,10 @@ def pairwise_flows(gray: list, preset: str = "fine", verbose: bool = False, stri
             fwd[j] = dis.calc(gray[a], gray[b], None)
             bwd[j] = dis.calc(gray[b], gray[a], None)
             if beside is not None:
-                jobs.append(beside.submit(medians, j, a, b))
-                show(sum(f.done() for f in jobs))
-            else:
-                if radius > 0:
-                    medians(j, a, b)
-                show(j + 1)
+                jobs.append(beside.submit(medians_beside, j, a, b))
+            elif radius > 0:
+                medians(j, a, b)
+            show(sum(f.done() for f in jobs) if beside is not None else j + 1)
         for k, f in enumerate(jobs):
             f.result()
             show(k + 1)
